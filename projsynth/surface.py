@@ -31,6 +31,7 @@ KINDS = (
 )
 _HIT_TOL = 1e-10  # |g(t)| at convergence for height fields, in world units (~1e-7 px)
 _MAX_SAFE_STEPS = 400
+_NEAR = 1e-5  # safe stepping hands over to Newton this close to the root (world units)
 
 
 @dataclass(frozen=True)
@@ -214,17 +215,21 @@ def _heightfield(field_: _Wave | _Bumps, o: np.ndarray, d: np.ndarray) -> np.nda
         tn = t - g / gp
         t = np.where((tn >= a) & (tn <= b), tn, 0.5 * (a + b))
 
-    # Other rays: Lipschitz-safe steps approach the first root from below and never pass it.
+    # Other rays: Lipschitz-safe steps approach the first root from below and never pass it; once
+    # within _NEAR of it, Newton polishes (only a tangent ray could then reach a later root).
     idx = np.nonzero(usable & ~certified)[0]
     if idx.size:
         lipschitz = dz[idx] + field_.slope * dxy[idx]
         t = lo[idx]
         for _ in range(_MAX_SAFE_STEPS):
             g, _ = g_and_slope(idx, t)
-            conv = g > -_HIT_TOL
-            t_out[idx[conv & (t <= hi[idx])]] = t[conv & (t <= hi[idx])]
-            keep = ~conv
-            if not keep.any():
+            near = g > -_NEAR
+            if near.all():
                 break
-            idx, t, lipschitz = idx[keep], t[keep] - g[keep] / lipschitz[keep], lipschitz[keep]
+            t = np.where(near, t, t - g / lipschitz)
+        for _ in range(4):
+            g, gp = g_and_slope(idx, t)
+            t = t - g / np.where(gp > 1e-12, gp, np.inf)
+        g, _ = g_and_slope(idx, t)
+        t_out[idx] = np.where((np.abs(g) < _HIT_TOL) & (t <= hi[idx]), t, np.inf)
     return t_out

@@ -1,0 +1,167 @@
+"""The ``projsynth`` command line: parse, call one library function, map errors to one line + exit 2."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from tqdm import tqdm
+
+from . import ProjsynthError
+from .dataset import parse_size, resolve_plan
+from .export import export as export_samples
+from .export import preview as preview_sheet
+from .generate import generate, merge
+from .transforms import load_table, table_to_toml
+from .verify import inspect as inspect_dataset
+from .verify import verify as verify_dataset
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Reproducible projector-camera pairs with exact ground-truth flow.")  # fmt: skip
+
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
+
+
+def _fail(e: Exception) -> typer.Exit:
+    typer.echo(f"projsynth: error: {e}", err=True)
+    return typer.Exit(2)
+
+
+def _bar(total: int, desc: str, quiet: bool) -> tqdm:
+    return tqdm(total=total, desc=desc, unit="sample", disable=quiet, file=sys.stderr, leave=False)
+
+
+@app.command()
+def gen(
+    out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).")],
+    natural: Annotated[Path | None, typer.Option(help="Folder of natural images (recursive).")] = None,
+    generated: Annotated[Path | None, typer.Option(help="Folder of generated/illustration images.")] = None,
+    pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
+    size: Annotated[str, typer.Option(help="Image size HxW.")] = "384x512",
+    seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
+    split: Annotated[str, typer.Option(help="train, val or test (disjoint source images).")] = "train",
+    transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).")] = None,
+    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
+    shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,
+    shards: Annotated[str | None, typer.Option(help="Only these shards, e.g. 40-79 (job arrays).")] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes.")] = 1,
+    blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.")] = "paper",
+    quiet: Quiet = False,
+) -> None:
+    """Generate shards of (projected, captured, flow) samples."""
+    try:
+        plan = resolve_plan(size=parse_size(size), seed=seed, split=split, pairs=pairs, transforms=transforms,
+                            blend=blend, table_path=table, natural=natural, generated=generated)  # fmt: skip
+        for line in plan.skipped:
+            typer.echo(f"projsynth: warning: skipped {line}", err=True)
+        with _bar(plan.num_samples, "gen", quiet) as bar:
+            result = generate(plan, out, shard_size=shard_size, shards=shards, workers=workers, progress=bar.update)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    if not quiet:
+        state = "complete, manifest written" if result.manifest else "manifest pending (run `projsynth merge`)"
+        typer.echo(f"{out}: {len(result.written)} shards written, {len(result.skipped)} already done, "
+                   f"{result.num_shards} in the plan; {state}", err=True)  # fmt: skip
+
+
+@app.command("merge")
+def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.")]) -> None:
+    """Write manifest.json once every shard exists (after a job array)."""
+    try:
+        manifest = merge(root)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    typer.echo(f"{root}: manifest of {manifest['num_samples']} samples in {len(manifest['shards'])} shards", err=True)
+
+
+@app.command()
+def verify(root: Annotated[Path, typer.Argument(help="Dataset directory.")], quiet: Quiet = False) -> None:
+    """Check schema, hashes, NaN/Inf and flow/valid consistency; exit 1 naming each bad shard."""
+    try:
+        with _bar(None, "verify", quiet) as bar:
+            problems = verify_dataset(root, progress=bar.update)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    for p in problems:
+        typer.echo(f"projsynth: verify: {p}", err=True)
+    if problems:
+        raise typer.Exit(1)
+    if not quiet:
+        typer.echo(f"{root}: OK", err=True)
+
+
+@app.command()
+def inspect(
+    root: Annotated[Path, typer.Argument(help="Dataset directory.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Counts, flow-magnitude histogram and valid-pixel share per bucket and family."""
+    try:
+        report = inspect_dataset(root)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    if as_json:
+        typer.echo(json.dumps(report, indent=1))
+        return
+    typer.echo(f"{report['dataset']}: {report['config']}")
+    typer.echo(f"{'family':18s} {'samples':>7s} {'valid':>6s} {'s0-10':>6s} {'s10-40':>6s} {'s40+':>6s}")
+    for name, r in [*report["families"].items(), ("TOTAL", report["total"])]:
+        b = r["bucket_share"]
+        typer.echo(f"{name:18s} {r['samples']:7d} {r['valid_share']:6.1%} {b['s0-10']:6.1%} "
+                   f"{b['s10-40']:6.1%} {b['s40+']:6.1%}")  # fmt: skip
+
+
+@app.command()
+def export(
+    root: Annotated[Path, typer.Argument(help="Dataset directory.")],
+    out: Annotated[Path, typer.Option(help="Output folder.")],
+    limit: Annotated[int | None, typer.Option(help="Export only the first N samples.")] = None,
+) -> None:
+    """Write PNGs, the flow .exr bytes unchanged, Middlebury .flo and a colour visualisation."""
+    try:
+        n = export_samples(root, out, limit)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    typer.echo(f"{out}: {n} samples exported", err=True)
+
+
+@app.command()
+def preview(
+    root: Annotated[Path, typer.Argument(help="Dataset directory.")],
+    out: Annotated[Path, typer.Option(help="PNG to write.")],
+    count: Annotated[int, typer.Option(help="Rows (samples spread over the dataset).")] = 8,
+) -> None:
+    """Contact sheet: projected | captured | flow colour | valid."""
+    try:
+        n = preview_sheet(root, out, count)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    typer.echo(f"{out}: {n} samples", err=True)
+
+
+@app.command("transforms")
+def transforms_cmd(
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    as_toml: Annotated[bool, typer.Option("--toml", help="Print TOML (editable, for --table).")] = False,
+    table: Annotated[Path | None, typer.Option(help="Show this TOML table instead of the built-in one.")] = None,
+) -> None:
+    """Print the transform table (160 configurations by default)."""
+    try:
+        tab = load_table(table)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    if as_toml:
+        typer.echo(table_to_toml(tab))
+    elif as_json:
+        rows = [{"id": c.id, "name": c.name, "family": c.family, "severity": c.severity,
+                 "condition": c.condition, "geometry": c.geometry, "photometry": c.photometry}
+                for c in tab.configs]  # fmt: skip
+        typer.echo(json.dumps({"version": tab.version, "transforms": rows}, indent=1))
+    else:
+        typer.echo(f"table {tab.version}: {len(tab)} configurations")
+        for c in tab.configs:
+            g = ", ".join(f"{k}={a:g}..{b:g}" for k, (a, b) in c.geometry.items() if k not in ("fov_deg",))
+            typer.echo(f"{c.id:4d} {c.name:30s} {g}")

@@ -1,0 +1,214 @@
+"""What a dataset contains: the resolved plan, and each sample as a pure function of (plan, index).
+
+Sample index ``k`` in ``[0, pairs * 2 * T)`` (``T`` selected transforms) maps to
+``pair = k // (2T)``, ``role = (k // T) % 2``, ``transform = transforms[k % T]``. Role 0 projects the
+natural image onto the generated scene, role 1 the reverse (the paper's bidirectional interchange).
+Every random draw comes from ``SeedSequence(seed, spawn_key=(split, pair, role, transform))``, so a
+sample never depends on the worker count, the shard size or which machine made it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import FORMAT_VERSION, ProjsynthError, __version__
+from .photometric import BLENDS
+from .procedural import THEMES, render_procedural
+from .render import render
+from .rig import make_scene
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .sources import SourceImage
+from .transforms import TransformTable, draw, load_table, parse_selection
+
+SPLITS = ("train", "val", "test")
+ROLES = ("natural_on_generated", "generated_on_natural")
+KINDS = ("natural", "generated")
+MIN_SIZE, MAX_SIZE = 32, 4096
+_SOURCE_TAG = 7  # spawn-key slot that separates source-image draws from sample draws
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The resolved generation config: everything that determines the samples."""
+
+    size: tuple[int, int]
+    seed: int
+    split: str
+    pairs: int
+    transforms: tuple[int, ...]
+    blend: str
+    table: TransformTable
+    sources: dict[str, tuple[SourceImage, ...]] | None = None  # None: built-in procedural images
+    skipped: tuple[str, ...] = field(default=())  # unreadable source files, with the reason
+
+    @property
+    def num_samples(self) -> int:
+        return self.pairs * 2 * len(self.transforms)
+
+    def describe(self) -> dict:
+        """JSON form recorded in ``dataset.json``/``manifest.json``; hashed into ``config_hash``."""
+        return {
+            "format_version": FORMAT_VERSION,
+            "generator": f"projsynth {__version__}",
+            "size": list(self.size),
+            "seed": self.seed,
+            "split": self.split,
+            "pairs": self.pairs,
+            "transforms": list(self.transforms),
+            "blend": self.blend,
+            "table_version": self.table.version,
+            "table_digest": self.table.digest(),
+            "sources": None
+            if self.sources is None
+            else {k: [s.name for s in v] for k, v in self.sources.items()},
+        }
+
+    def config_hash(self) -> str:
+        return hashlib.sha256(json.dumps(self.describe(), sort_keys=True).encode()).hexdigest()
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"384x512"`` -> ``(384, 512)`` (height x width), both in ``[32, 4096]`` and multiples of 2."""
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ProjsynthError(f"--size: expected HxW such as 384x512, got {text!r}") from None
+    if not (MIN_SIZE <= h <= MAX_SIZE and MIN_SIZE <= w <= MAX_SIZE):
+        raise ProjsynthError(f"--size: {h}x{w} is outside {MIN_SIZE}..{MAX_SIZE} per side")
+    return h, w
+
+
+def resolve_plan(
+    *,
+    size: tuple[int, int],
+    seed: int,
+    split: str,
+    pairs: int | None,
+    transforms: str | None,
+    blend: str,
+    table_path: Path | None = None,
+    natural: Path | None = None,
+    generated: Path | None = None,
+) -> Plan:
+    """Validate the options and fix the source images of every pair (folders are read once here)."""
+    if split not in SPLITS:
+        raise ProjsynthError(f"--split: {split!r} is not one of {', '.join(SPLITS)}")
+    if blend not in BLENDS:
+        raise ProjsynthError(f"--blend: {blend!r} is not one of {', '.join(BLENDS)}")
+    if seed < 0:
+        raise ProjsynthError(f"--seed: must be >= 0, got {seed}")
+    if pairs is not None and pairs < 1:
+        raise ProjsynthError(f"--pairs: must be >= 1, got {pairs}")
+    if (natural is None) != (generated is None):
+        raise ProjsynthError("--natural and --generated go together; give both folders or neither")
+    table = load_table(table_path)
+    selected = tuple(parse_selection(transforms, len(table)))
+    if natural is None:
+        return Plan(size, seed, split, pairs or 4, selected, blend, table)
+    chosen: dict[str, tuple[SourceImage, ...]] = {}
+    skipped: list[str] = []
+    for kind, folder in (("natural", natural), ("generated", generated)):
+        from .sources import FolderSource
+
+        source = FolderSource(folder, kind)
+        candidates = source.files_for_split(split, seed)
+        good = []
+        for src in candidates:
+            if pairs is not None and len(good) == pairs:
+                break
+            try:
+                source.load(src, size)
+            except ProjsynthError as e:
+                skipped.append(str(e))
+                continue
+            good.append(src)
+        chosen[kind] = tuple(good)
+    n = min(len(v) for v in chosen.values())
+    if n == 0 or (pairs is not None and n < pairs):
+        raise ProjsynthError(
+            f"--pairs: the {split} split has {n} usable pairs "
+            f"({len(chosen['natural'])} natural, {len(chosen['generated'])} generated images); "
+            "lower --pairs or add images"
+        )
+    chosen = {k: v[:n] for k, v in chosen.items()}
+    return Plan(size, seed, split, n, selected, blend, table, chosen, tuple(skipped))
+
+
+def sample_key(plan: Plan, k: int) -> tuple[int, int, int]:
+    """Sample index -> ``(pair, role, transform_id)``."""
+    t = len(plan.transforms)
+    return k // (2 * t), (k // t) % 2, plan.transforms[k % t]
+
+
+def sample_id(plan: Plan, k: int) -> str:
+    pair, role, tid = sample_key(plan, k)
+    return f"{plan.split}-p{pair:05d}-r{role}-t{tid:03d}"
+
+
+def source_images(plan: Plan, pair: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The (natural, generated) images of ``pair`` at the plan's size, and where they came from."""
+    if plan.sources is None:
+        images, names = [], {}
+        for i, kind in enumerate(KINDS):
+            ss = np.random.SeedSequence(plan.seed, spawn_key=(SPLITS.index(plan.split), pair, i, _SOURCE_TAG))
+            rng = np.random.default_rng(ss)
+            theme = THEMES[int(rng.integers(len(THEMES)))]
+            images.append(render_procedural(kind, theme, plan.size, rng))
+            names[kind] = f"builtin:{kind}/{theme}/{plan.split}-{pair}"
+        return images[0], images[1], names
+    imgs = [FolderSource.load_path(plan.sources[kind][pair], plan.size) for kind in KINDS]
+    return imgs[0], imgs[1], {kind: plan.sources[kind][pair].name for kind in KINDS}
+
+
+@dataclass(frozen=True)
+class Sample:
+    index: int
+    id: str
+    projected: np.ndarray  # (H, W, 3) uint8
+    captured: np.ndarray  # (H, W, 3) uint8
+    flow: np.ndarray  # (H, W, 2) float32, projected -> captured
+    valid: np.ndarray  # (H, W) bool
+    params: dict
+
+    def content_hash(self) -> str:
+        """sha256 over the id, both images, the mask, the flow and the parameters."""
+        h = hashlib.sha256(self.id.encode())
+        for a in (self.projected, self.captured, self.valid, self.flow):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(json.dumps(self.params, sort_keys=True).encode())
+        return h.hexdigest()
+
+
+def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
+    """Render sample ``k`` of ``plan`` (``images``: the pair's sources, if the caller has them)."""
+    pair, role, tid = sample_key(plan, k)
+    natural, generated, names = images if images is not None else source_images(plan, pair)
+    projected, background = (natural, generated) if role == 0 else (generated, natural)
+    cfg = plan.table.configs[tid]
+    ss = np.random.SeedSequence(plan.seed, spawn_key=(SPLITS.index(plan.split), pair, role, tid))
+    rng = np.random.default_rng(ss)
+    scene, geometry = make_scene(cfg.family, cfg.geometry, rng, plan.size)
+    photometry = draw(rng, cfg.photometry)
+    out = render(projected, background, scene, photometry, plan.blend, rng)
+    params = {
+        "sample_id": sample_id(plan, k),
+        "pair": pair,
+        "role": ROLES[role],
+        "transform_id": tid,
+        "transform": {"name": cfg.name, "family": cfg.family, "severity": cfg.severity,
+                      "condition": cfg.condition, "table_version": plan.table.version},
+        "sources": {"projected": names[KINDS[role]], "background": names[KINDS[1 - role]]},
+        "geometry": geometry,
+        "photometry": photometry,
+        "blend": plan.blend,
+        "scene": scene.to_dict(),
+        "stats": out.stats,
+    }
+    return Sample(k, params["sample_id"], projected, out.captured, out.flow, out.valid, params)

@@ -1,0 +1,146 @@
+"""``projsynth gen``: render a plan into shards, in parallel, resumably.
+
+Work is split by shard: each worker process renders a whole shard and writes it atomically, so
+nothing crosses process boundaries but shard indices, and a killed run leaves only ``*.tmp`` files,
+which the next run removes. Finished shards (same config hash) are skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import FORMAT_VERSION, ProjsynthError, __version__
+from .dataset import Plan, make_sample, source_images
+from .shards import (
+    MANIFEST,
+    PLAN_FILE,
+    assemble_manifest,
+    shard_is_complete,
+    shard_name,
+    write_json_atomic,
+    write_shard,
+)
+
+
+@dataclass(frozen=True)
+class GenResult:
+    written: list[int]
+    skipped: list[int]
+    num_shards: int
+    manifest: dict | None  # None while some shards of the plan are still missing
+
+
+def parse_shard_range(spec: str | None, num_shards: int) -> range:
+    """``"40-79"`` or ``"3"`` or None (all) -> shard indices, checked against the plan."""
+    if spec is None:
+        return range(num_shards)
+    try:
+        lo, _, hi = spec.partition("-")
+        a, b = int(lo), int(hi) if hi else int(lo)
+    except ValueError:
+        raise ProjsynthError(f"--shards: cannot parse {spec!r}; use e.g. 40-79") from None
+    if not 0 <= a <= b < num_shards:
+        raise ProjsynthError(f"--shards: {spec} is outside 0-{num_shards - 1} (this plan has {num_shards} shards)")
+    return range(a, b + 1)
+
+
+def generate(
+    plan: Plan,
+    out: Path,
+    *,
+    shard_size: int,
+    shards: str | None = None,
+    workers: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> GenResult:
+    """Write the shards of ``plan`` under ``out`` (a subset with ``shards``) and, when all exist,
+    the manifest. ``progress(n)`` is called with the number of samples each finished shard adds."""
+    if shard_size < 1:
+        raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
+    if workers < 1:
+        raise ProjsynthError(f"--workers: must be >= 1, got {workers}")
+    num_shards = -(-plan.num_samples // shard_size)
+    todo_range = parse_shard_range(shards, num_shards)
+    info = {**plan.describe(), "config_hash": plan.config_hash(), "shard_size": shard_size,
+            "num_shards": num_shards, "skipped_sources": list(plan.skipped)}  # fmt: skip
+    _prepare_dir(out, info)
+    todo, done = [], []
+    for j in todo_range:
+        (out / (shard_name(j) + ".tmp")).unlink(missing_ok=True)  # left by an interrupted run
+        (done if shard_is_complete(out / shard_name(j), info["config_hash"]) else todo).append(j)
+    if progress:
+        progress(sum(_shard_count(plan, shard_size, j) for j in done))
+    jobs = [(plan, out, shard_size, j, info["config_hash"]) for j in todo]
+    if workers == 1 or len(jobs) <= 1:
+        for job in jobs:
+            _report(progress, _write_one(job))
+    else:
+        with mp.get_context("spawn").Pool(min(workers, len(jobs))) as pool:
+            for n in pool.imap_unordered(_write_one, jobs):
+                _report(progress, n)
+    manifest = None
+    if all(shard_is_complete(out / shard_name(j), info["config_hash"]) for j in range(num_shards)):
+        manifest = assemble_manifest(out, info, num_shards, shard_size)
+    return GenResult(todo, done, num_shards, manifest)
+
+
+def merge(out: Path) -> dict:
+    """Assemble ``manifest.json`` once every shard of the plan in ``out`` exists (job arrays)."""
+    try:
+        info = json.loads((out / PLAN_FILE).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ProjsynthError(f"{out / PLAN_FILE}: cannot read the plan ({e}); is this a projsynth dataset?") from e
+    missing = [j for j in range(info["num_shards"]) if not shard_is_complete(out / shard_name(j), info["config_hash"])]
+    if missing:
+        raise ProjsynthError(f"{out}: {len(missing)} of {info['num_shards']} shards missing or incomplete "
+                             f"(first: {shard_name(missing[0])}); generate them with --shards")  # fmt: skip
+    return assemble_manifest(out, info, info["num_shards"], info["shard_size"])
+
+
+def _prepare_dir(out: Path, info: dict) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ProjsynthError(f"--out {out}: cannot create directory ({e.strerror}); choose a writable path") from e
+    plan_path = out / PLAN_FILE
+    if plan_path.exists():
+        try:
+            old = json.loads(plan_path.read_text())
+        except (OSError, json.JSONDecodeError):
+            old = {}
+        if old.get("config_hash") != info["config_hash"] or old.get("shard_size") != info["shard_size"]:
+            raise ProjsynthError(f"--out {out}: holds a dataset made with other options (see {plan_path}); "
+                                 "use a new --out, or the same options to resume")  # fmt: skip
+        return
+    if (out / MANIFEST).exists() or any(out.glob("shard-*.h5")):
+        raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
+    write_json_atomic(plan_path, info | {"generator": f"projsynth {__version__}"})
+
+
+def _shard_count(plan: Plan, shard_size: int, j: int) -> int:
+    return min(shard_size, plan.num_samples - j * shard_size)
+
+
+def _write_one(job: tuple) -> int:
+    plan, out, shard_size, j, config_hash = job
+    first = j * shard_size
+    samples, cache = [], {}
+    for k in range(first, first + _shard_count(plan, shard_size, j)):
+        pair = k // (2 * len(plan.transforms))
+        if pair not in cache:
+            cache = {pair: source_images(plan, pair)}  # samples of a pair are consecutive
+        samples.append(make_sample(plan, k, cache[pair]))
+    attrs = {"format_version": FORMAT_VERSION, "generator": f"projsynth {__version__}", "config_hash": config_hash,
+             "seed": plan.seed, "shard_index": j, "first_sample": first, "split": plan.split,
+             "table_version": plan.table.version}  # fmt: skip
+    write_shard(out / shard_name(j), samples, attrs)
+    return len(samples)
+
+
+def _report(progress: Callable[[int], None] | None, n: int) -> None:
+    if progress:
+        progress(n)

@@ -1,0 +1,185 @@
+"""Shards on disk: atomic HDF5 writing, reading one sample back, the manifest, and verification.
+
+A dataset directory holds ``dataset.json`` (the plan), ``shard-NNNNN.h5`` files and, once every shard
+exists, ``manifest.json`` (per-shard sha256 and per-sample content hashes). See docs/format.md.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import FORMAT_VERSION, ProjsynthError, __version__
+from .dataset import Sample
+from .flowio import decode_flow_exr, encode_flow_exr
+
+MANIFEST, PLAN_FILE = "manifest.json", "dataset.json"
+_IMAGE_OPTS = {"compression": "lzf", "track_times": False}
+
+
+def shard_name(index: int) -> str:
+    return f"shard-{index:05d}.h5"
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON to ``path`` through a fsynced temporary file and a rename."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w") as f:
+            json.dump(data, f, indent=1, sort_keys=True)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise ProjsynthError(f"{path}: cannot write ({_why(e)})") from e
+
+
+def _why(e: OSError) -> str:
+    if e.errno == errno.ENOSPC:
+        return "no space left on device; free space and re-run the same command to resume"
+    return f"{e.strerror or e}; check the directory is writable"
+
+
+def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
+    """Write ``samples`` as one shard, atomically: a temporary file, fsync, then rename.
+
+    Raises:
+        ProjsynthError: the disk is full or the directory unwritable (the temporary file is removed).
+    """
+    tmp = path.with_name(path.name + ".tmp")
+    n = len(samples)
+    h, w = samples[0].projected.shape[:2]
+    try:
+        with h5py.File(tmp, "w", libver="v110", track_order=False) as f:
+            for key, value in attrs.items():
+                f.attrs[key] = value
+            f.attrs["count"] = n
+            proj = f.create_dataset("projected", (n, h, w, 3), np.uint8, chunks=(1, h, w, 3), **_IMAGE_OPTS)
+            capt = f.create_dataset("captured", (n, h, w, 3), np.uint8, chunks=(1, h, w, 3), **_IMAGE_OPTS)
+            valid = f.create_dataset("valid", (n, h, w), bool, chunks=(1, h, w), **_IMAGE_OPTS)
+            exr = f.create_dataset("flow_exr", (n,), h5py.vlen_dtype(np.uint8), track_times=False)
+            for i, s in enumerate(samples):
+                proj[i], capt[i], valid[i] = s.projected, s.captured, s.valid
+                exr[i] = np.frombuffer(encode_flow_exr(s.flow, s.valid, s.id), np.uint8)
+            text = h5py.string_dtype()
+            f.create_dataset("sample_id", data=[s.id for s in samples], dtype=text, track_times=False)
+            f.create_dataset("params", data=[json.dumps(s.params, sort_keys=True) for s in samples],
+                             dtype=text, track_times=False)  # fmt: skip
+            f.create_dataset("transform_id", data=[s.params["transform_id"] for s in samples], dtype=np.int16,
+                             track_times=False)  # fmt: skip
+            f.create_dataset("sample_hash", data=[s.content_hash() for s in samples], dtype=text,
+                             track_times=False)  # fmt: skip
+            f.attrs["complete"] = True
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise ProjsynthError(f"{path}: cannot write shard ({_why(e)})") from e
+
+
+def shard_is_complete(path: Path, config_hash: str) -> bool:
+    """True when ``path`` is a finished shard of the dataset with ``config_hash``."""
+    try:
+        with h5py.File(path, "r") as f:
+            return bool(f.attrs.get("complete")) and f.attrs.get("config_hash") == config_hash
+    except (OSError, ValueError):
+        return False
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def assemble_manifest(root: Path, plan_info: dict, num_shards: int, shard_size: int) -> dict:
+    """Build and write ``manifest.json`` from the finished shards under ``root``."""
+    shards, samples = [], []
+    for j in range(num_shards):
+        path = root / shard_name(j)
+        with h5py.File(path, "r") as f:
+            ids = [s.decode() for s in f["sample_id"][:]]
+            hashes = [s.decode() for s in f["sample_hash"][:]]
+        shards.append({"index": j, "file": path.name, "first_sample": j * shard_size, "count": len(ids),
+                       "sha256": file_sha256(path), "bytes": path.stat().st_size})  # fmt: skip
+        samples += [{"id": i, "sha256": s} for i, s in zip(ids, hashes, strict=True)]
+    manifest = {**plan_info, "shard_size": shard_size, "num_samples": len(samples), "shards": shards,
+                "samples": samples}  # fmt: skip
+    write_json_atomic(root / MANIFEST, manifest)
+    return manifest
+
+
+def load_manifest(root: Path) -> dict:
+    path = Path(root) / MANIFEST
+    try:
+        manifest = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ProjsynthError(f"{path}: no manifest; finish `projsynth gen` (or run `projsynth merge`) first") from None
+    except (OSError, json.JSONDecodeError) as e:
+        raise ProjsynthError(f"{path}: unreadable manifest ({e}); re-run `projsynth merge {root}`") from e
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise ProjsynthError(f"{path}: format version {manifest.get('format_version')} is not {FORMAT_VERSION}")
+    return manifest
+
+
+class ShardReader:
+    """Random access to the samples of one dataset directory; HDF5 files open lazily, per process.
+
+    Convention: ``read(k)`` returns projected/captured ``(H, W, 3)`` uint8, flow ``(H, W, 2)``
+    float32 projected->captured, valid ``(H, W)`` bool, and the parameter dict.
+    """
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.manifest = load_manifest(self.root)
+        self.shard_size = self.manifest["shard_size"]
+        self._files: dict[int, h5py.File] = {}
+        self._pid = os.getpid()
+
+    def __len__(self) -> int:
+        return self.manifest["num_samples"]
+
+    def _file(self, j: int) -> h5py.File:
+        if self._pid != os.getpid():  # never share HDF5 handles across a fork
+            self._files, self._pid = {}, os.getpid()
+        if j not in self._files:
+            path = self.root / shard_name(j)
+            try:
+                self._files[j] = h5py.File(path, "r")
+            except OSError as e:
+                raise ProjsynthError(f"{path}: cannot open shard ({e}); run `projsynth verify {self.root}`") from e
+        return self._files[j]
+
+    def read(self, k: int) -> dict:
+        if not 0 <= k < len(self):
+            raise IndexError(k)
+        j, i = divmod(k, self.shard_size)
+        f = self._file(j)
+        try:
+            flow, valid_exr, _ = decode_flow_exr(f["flow_exr"][i].tobytes())
+            return {
+                "projected": f["projected"][i],
+                "captured": f["captured"][i],
+                "valid": f["valid"][i],
+                "flow": flow,
+                "params": json.loads(f["params"][i]),
+            }
+        except (OSError, KeyError, ValueError) as e:
+            raise ProjsynthError(f"{self.root / shard_name(j)}: sample {i} unreadable ({e}); "
+                                 f"run `projsynth verify {self.root}`") from e  # fmt: skip
+
+    def close(self) -> None:
+        for f in self._files.values():
+            f.close()
+        self._files = {}

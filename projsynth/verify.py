@@ -1,0 +1,137 @@
+"""``projsynth verify`` and ``projsynth inspect``: check a dataset end to end, and summarise it."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import ProjsynthError
+from .dataset import Sample
+from .flowio import decode_flow_exr
+from .shards import PLAN_FILE, file_sha256, load_manifest, shard_name
+
+BUCKETS = (("s0-10", 0.0, 10.0), ("s10-40", 10.0, 40.0), ("s40+", 40.0, np.inf))
+
+
+def bucket_of(mag: np.ndarray) -> list[np.ndarray]:
+    """Masks of the three flow-magnitude buckets (|gt| < 10, 10 <= |gt| <= 40, |gt| > 40)."""
+    return [mag < 10.0, (mag >= 10.0) & (mag <= 40.0), mag > 40.0]
+
+
+def _samples(path: Path) -> Iterator[tuple[int, Sample]]:
+    with h5py.File(path, "r") as f:
+        for i in range(int(f.attrs["count"])):
+            flow, valid_exr, header = decode_flow_exr(f["flow_exr"][i].tobytes())
+            valid = f["valid"][i]
+            if not np.array_equal(valid, valid_exr):
+                raise ValueError(f"sample {i}: EXR valid channel differs from the valid dataset")
+            params = json.loads(f["params"][i])
+            sid = f["sample_id"][i].decode()
+            if header.get("sample_id") != sid:
+                raise ValueError(f"sample {i}: EXR sample_id {header.get('sample_id')!r} is not {sid!r}")
+            yield i, Sample(int(f.attrs["first_sample"]) + i, sid, f["projected"][i], f["captured"][i],
+                            flow, valid, params)  # fmt: skip
+
+
+def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[str]:
+    """Check schema, hashes, finiteness and flow/valid consistency of every shard.
+
+    Returns:
+        One line per problem, each naming the file (empty when the dataset is intact).
+    """
+    root = Path(root)
+    manifest = load_manifest(root)
+    problems = []
+    h, w = manifest["size"]
+    expected = iter(manifest["samples"])
+    for entry in manifest["shards"]:
+        path = root / entry["file"]
+        if entry["file"] != shard_name(entry["index"]):
+            problems.append(f"{path}: manifest names shard {entry['index']} {entry['file']!r}")
+        if not path.exists():
+            problems.append(f"{path}: missing; regenerate it with `projsynth gen ... --shards {entry['index']}`")
+            continue
+        if file_sha256(path) != entry["sha256"]:
+            problems.append(f"{path}: sha256 differs from the manifest (corrupt or modified); regenerate it")
+        try:
+            problems += [f"{path}: {p}" for p in _check_shard(path, manifest, entry, expected, h, w)]
+        except (OSError, KeyError, ValueError, ProjsynthError) as e:
+            problems.append(f"{path}: unreadable ({e}); regenerate it")
+        if progress:
+            progress(entry["count"])
+    return problems
+
+
+def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h: int, w: int) -> list[str]:
+    out = []
+    with h5py.File(path, "r") as f:
+        n = entry["count"]
+        if f.attrs.get("config_hash") != manifest["config_hash"] or f.attrs.get("shard_index") != entry["index"]:
+            out.append("attributes do not match the manifest (config hash or shard index)")
+        for name, shape in (("projected", (n, h, w, 3)), ("captured", (n, h, w, 3)), ("valid", (n, h, w))):
+            if f[name].shape != shape:
+                out.append(f"dataset {name} has shape {f[name].shape}, expected {shape}")
+        if out:
+            return out
+        stored = [s.decode() for s in f["sample_hash"][:]]
+    ys, xs = np.mgrid[0:h, 0:w]
+    for i, s in _samples(path):
+        want = next(expected, {"id": None, "sha256": None})
+        digest = s.content_hash()
+        if digest != stored[i] or digest != want["sha256"] or s.id != want["id"]:
+            out.append(f"sample {i} ({s.id}): content hash differs from the manifest")
+        if not np.isfinite(s.flow).all():
+            out.append(f"sample {i} ({s.id}): flow has NaN or Inf")
+            continue
+        if np.any(s.flow[~s.valid] != 0):
+            out.append(f"sample {i} ({s.id}): non-zero flow at invalid pixels")
+        u, v = xs + s.flow[..., 0], ys + s.flow[..., 1]
+        inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+        if np.any(s.valid & ~inside):
+            out.append(f"sample {i} ({s.id}): valid pixels whose flow leaves the camera frame")
+    return out
+
+
+def inspect(root: Path) -> dict:
+    """Counts, per-family flow-magnitude histograms and the share of valid pixels per bucket."""
+    root = Path(root)
+    manifest = load_manifest(root)
+    edges = [0, 2, 5, 10, 20, 40, 80, 160, np.inf]
+    families: dict[str, dict] = {}
+    total = {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0], "hist": [0] * (len(edges) - 1)}
+    for entry in manifest["shards"]:
+        for _, s in _samples(root / entry["file"]):
+            fam = s.params["transform"]["family"]
+            rec = families.setdefault(fam, {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0],
+                                            "hist": [0] * (len(edges) - 1)})  # fmt: skip
+            mag = np.hypot(s.flow[..., 0], s.flow[..., 1])[s.valid]
+            counts = [int(m.sum()) for m in bucket_of(mag)]
+            hist = np.histogram(mag, bins=edges)[0]
+            for r in (rec, total):
+                r["samples"] += 1
+                r["pixels"] += s.valid.size
+                r["valid"] += int(s.valid.sum())
+                r["buckets"] = [a + b for a, b in zip(r["buckets"], counts, strict=True)]
+                r["hist"] = [a + int(b) for a, b in zip(r["hist"], hist, strict=True)]
+    return {
+        "dataset": str(root),
+        "config": {k: manifest[k] for k in ("size", "seed", "split", "pairs", "blend", "table_version")},
+        "total": _summary(total),
+        "families": {k: _summary(v) for k, v in sorted(families.items())},
+        "histogram_edges_px": [e if np.isfinite(e) else None for e in edges],
+        "plan": json.loads((root / PLAN_FILE).read_text()).get("config_hash"),
+    }
+
+
+def _summary(r: dict) -> dict:
+    valid = max(r["valid"], 1)
+    return {
+        "samples": r["samples"],
+        "valid_share": round(r["valid"] / max(r["pixels"], 1), 4),
+        "bucket_share": {name: round(c / valid, 4) for (name, _, _), c in zip(BUCKETS, r["buckets"], strict=True)},
+        "histogram": r["hist"],
+    }
