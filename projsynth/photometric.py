@@ -80,22 +80,29 @@ def _physical(warped: np.ndarray, a: np.ndarray, bg: np.ndarray, p: dict, rng: n
 
 
 def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Sample ``image`` ``(H, W, C)`` uint8 at float positions with exact bilinear weights.
+    """Sample ``image`` ``(H, W, 4)`` uint8 at float positions with exact bilinear weights.
 
     Convention: pixel centres at integers; positions must lie in ``[0, W-1] x [0, H-1]``.
     (``cv2.remap`` quantises positions to 1/32 px; ground truth needs the exact position.)
 
     Returns:
-        ``(N, C)`` float32.
+        ``(N, 4)`` float32.
     """
     h, w, c = image.shape
-    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2)
-    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2)
+    if c != 4:
+        raise ValueError("sample_bilinear expects 4 channels (RGB + alpha)")
+    x0 = np.minimum(x.astype(np.int32), w - 2)  # x >= 0, so truncation is floor
+    y0 = np.minimum(y.astype(np.int32), h - 2)
     fx = (x - x0).astype(np.float32)[:, None]
     fy = (y - y0).astype(np.float32)[:, None]
-    flat = image.reshape(h * w, c)
+    packed = np.ascontiguousarray(image).view(np.uint32).reshape(h * w)  # one gather per neighbour
     i = y0 * w + x0
-    p00, p01 = flat[i].astype(np.float32), flat[i + 1].astype(np.float32)
-    p10, p11 = flat[i + w].astype(np.float32), flat[i + w + 1].astype(np.float32)
-    top = p00 + (p01 - p00) * fx
-    return top + ((p10 + (p11 - p10) * fx) - top) * fy
+
+    def tap(idx: np.ndarray) -> np.ndarray:
+        return packed[idx].view(np.uint8).reshape(-1, 4).astype(np.float32)
+
+    top = tap(i)
+    top += (tap(i + 1) - top) * fx
+    bottom = tap(i + w)
+    bottom += (tap(i + w + 1) - bottom) * fx
+    return top + (bottom - top) * fy

@@ -64,14 +64,21 @@ class Surface:
 def single_crossing(surface: Surface, o: np.ndarray, d: np.ndarray) -> np.ndarray:
     """True for rays ``(3, N)`` that provably meet the surface at most once (so nothing hides it).
 
-    Planes always; height fields when the ray is steeper than the surface's maximum slope;
-    quadrics never (the caller casts the ray).
+    Planes always; height fields when the ray is steeper than the surface's maximum slope; concave
+    quadrics when the shared origin ``o`` ``(3, 1)`` is inside them; otherwise the caller casts.
     """
     if surface.kind == "plane":
         return np.ones(d.shape[1], bool)
     if surface.kind in _HEIGHTFIELDS:
         _, dl = surface.to_local(o, d)
         return dl[2] > _HEIGHTFIELDS[surface.kind](surface.params).slope * np.hypot(dl[0], dl[1]) * 1.0001
+    if surface.kind.endswith("concave") and o.shape[1] == 1:
+        # seen from inside the full quadric, its inner surface never hides itself
+        radius = surface.params["radius"]
+        ol, _ = surface.to_local(o, d[:, :1])
+        rel = ol[:, 0] - np.array([0.0, 0.0, -radius])
+        inside = (rel[0] ** 2 + rel[2] ** 2 + (rel[1] ** 2 if surface.kind.startswith("sphere") else 0.0)) < radius**2
+        return np.full(d.shape[1], bool(inside))
     return np.zeros(d.shape[1], bool)
 
 
@@ -121,12 +128,12 @@ def _quadric(kind: str, radius: float, o: np.ndarray, d: np.ndarray) -> np.ndarr
     r1 = np.where(real & np.isfinite(r1), r1, np.inf)
     best = np.full(d.shape[1], np.inf)
     for t in (np.minimum(r0, r1), np.maximum(r0, r1)):  # take the first root on the front side
-        tt = np.where(np.isfinite(t), t, 0.0)
-        p = oc + tt * d
-        # d . outward normal, up to a positive factor; the front side of a concave one is the inside
-        dot = (p[axes] * da).sum(0)
+        # at o + t d: (d . outward normal) = b + t a up to a positive factor, height = oc_z + t d_z;
+        # the front side of a concave surface is its inside
+        dot = b + t * a
         facing = dot < 0 if convex else dot > 0
-        on_half = p[2] <= 0 if convex else p[2] >= 0
+        z = oc[2] + t * d[2]
+        on_half = z <= 0 if convex else z >= 0
         ok = np.isfinite(t) & (t > 1e-9) & on_half & facing & np.isinf(best)
         best = np.where(ok, t, best)
     return best
