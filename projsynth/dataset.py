@@ -21,10 +21,7 @@ from .photometric import BLENDS
 from .procedural import THEMES, render_procedural
 from .render import render
 from .rig import make_scene
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from .sources import SourceImage
+from .sources import FolderSource, SourceImage, fit_to_size, load_image
 from .transforms import TransformTable, draw, load_table, parse_selection
 
 SPLITS = ("train", "val", "test")
@@ -115,9 +112,7 @@ def resolve_plan(
     chosen: dict[str, tuple[SourceImage, ...]] = {}
     skipped: list[str] = []
     for kind, folder in (("natural", natural), ("generated", generated)):
-        from .sources import FolderSource
-
-        source = FolderSource(folder, kind)
+        source = FolderSource(folder, kind, f"--{kind}")
         candidates = source.files_for_split(split, seed)
         good = []
         for src in candidates:
@@ -163,7 +158,8 @@ def source_images(plan: Plan, pair: int) -> tuple[np.ndarray, np.ndarray, dict]:
             images.append(render_procedural(kind, theme, plan.size, rng))
             names[kind] = f"builtin:{kind}/{theme}/{plan.split}-{pair}"
         return images[0], images[1], names
-    imgs = [FolderSource.load_path(plan.sources[kind][pair], plan.size) for kind in KINDS]
+    srcs = [plan.sources[kind][pair] for kind in KINDS]
+    imgs = [fit_to_size(load_image(s.path), plan.size, name=str(s.path)) for s in srcs]
     return imgs[0], imgs[1], {kind: plan.sources[kind][pair].name for kind in KINDS}
 
 

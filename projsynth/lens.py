@@ -135,5 +135,7 @@ def project_points(lens: Lens, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 
 
 def in_frame(lens: Lens, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """True where ``(u, v)`` lies where bilinear sampling needs no extrapolation: ``[0, W-1] x [0, H-1]``."""
-    return (u >= 0.0) & (u <= lens.width - 1) & (v >= 0.0) & (v <= lens.height - 1)
+    """True where ``(u, v)`` lies where bilinear sampling needs no extrapolation: ``[0, W-1] x [0, H-1]``
+    (with a 1e-6 px margin, so border pixels survive a round trip's rounding)."""
+    e = 1e-6
+    return (u >= -e) & (u <= lens.width - 1 + e) & (v >= -e) & (v <= lens.height - 1 + e)

@@ -91,8 +91,8 @@ def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
     h, w, c = image.shape
     if c != 4:
         raise ValueError("sample_bilinear expects 4 channels (RGB + alpha)")
-    x0 = np.minimum(x.astype(np.int32), w - 2)  # x >= 0, so truncation is floor
-    y0 = np.minimum(y.astype(np.int32), h - 2)
+    x0 = np.clip(x.astype(np.int32), 0, w - 2)  # x >= -1e-6, so truncation is floor
+    y0 = np.clip(y.astype(np.int32), 0, h - 2)
     fx = (x - x0).astype(np.float32)[:, None]
     fy = (y - y0).astype(np.float32)[:, None]
     packed = np.ascontiguousarray(image).view(np.uint32).reshape(h * w)  # one gather per neighbour

@@ -24,9 +24,11 @@ def _rgb(*colours: tuple[int, int, int]) -> np.ndarray:
 
 
 # Natural palettes, RGB. Skies are (zenith, horizon).
-_SKY = _rgb((95, 140, 205), (185, 205, 228), (120, 130, 150), (175, 180, 190), (60, 110, 190), (215, 195, 170))
+_SKY = _rgb((95, 140, 205), (185, 205, 228), (120, 130, 150), (175, 180, 190),
+            (60, 110, 190), (215, 195, 170))
 _CLOUD = _rgb((236, 238, 240))
-_FACADE = _rgb((130, 130, 135), (150, 82, 62), (190, 170, 130), (72, 100, 130), (208, 203, 192), (105, 95, 90))
+_FACADE = _rgb((130, 130, 135), (150, 82, 62), (190, 170, 130), (72, 100, 130),
+               (208, 203, 192), (105, 95, 90))
 _WINDOW = _rgb((38, 48, 60), (232, 210, 150), (120, 150, 182))
 _FIELD = _rgb((110, 150, 60), (200, 180, 92), (130, 100, 70), (160, 190, 90), (88, 120, 50), (180, 160, 120))
 _GRASS = _rgb((150, 160, 80), (182, 170, 100), (118, 140, 60), (200, 188, 128))
@@ -38,11 +40,16 @@ _DARK = _rgb((58, 78, 56), (70, 64, 60))
 
 # Illustration palettes: saturated flat colours per theme.
 _CARTOON = {
-    "urban": _rgb((90, 90, 110), (240, 80, 150), (40, 200, 220), (250, 210, 60), (180, 180, 200), (60, 50, 90)),
-    "rural": _rgb((110, 190, 80), (200, 50, 40), (250, 220, 90), (120, 180, 240), (150, 100, 60), (240, 240, 220)),
-    "prairie": _rgb((235, 190, 70), (240, 130, 50), (110, 170, 230), (130, 180, 70), (250, 240, 200), (170, 90, 50)),
-    "forest": _rgb((40, 130, 70), (100, 180, 80), (120, 80, 50), (220, 60, 50), (245, 235, 200), (20, 80, 60)),
-    "ocean": _rgb((30, 110, 200), (60, 200, 210), (250, 120, 100), (240, 220, 160), (250, 250, 250), (20, 50, 110)),
+    "urban": _rgb((90, 90, 110), (240, 80, 150), (40, 200, 220), (250, 210, 60), (180, 180, 200),
+                  (60, 50, 90)),
+    "rural": _rgb((110, 190, 80), (200, 50, 40), (250, 220, 90), (120, 180, 240), (150, 100, 60),
+                  (240, 240, 220)),
+    "prairie": _rgb((235, 190, 70), (240, 130, 50), (110, 170, 230), (130, 180, 70), (250, 240, 200),
+                    (170, 90, 50)),
+    "forest": _rgb((40, 130, 70), (100, 180, 80), (120, 80, 50), (220, 60, 50), (245, 235, 200),
+                   (20, 80, 60)),
+    "ocean": _rgb((30, 110, 200), (60, 200, 210), (250, 120, 100), (240, 220, 160), (250, 250, 250),
+                  (20, 50, 110)),
 }
 _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_PLAIN, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX,
           cv2.FONT_HERSHEY_TRIPLEX, cv2.FONT_HERSHEY_SCRIPT_SIMPLEX, cv2.FONT_HERSHEY_SCRIPT_COMPLEX)
@@ -75,7 +82,8 @@ def render_procedural(kind: str, theme: str, size: tuple[int, int], rng: np.rand
         raise ProjsynthError(f"procedural theme {theme!r} is unknown; use one of {', '.join(THEMES)}")
     h, w = (int(v) for v in size)
     if min(h, w) < MIN_SIDE:
-        raise ProjsynthError(f"image size {h}x{w} is too small for procedural images; use sides >= {MIN_SIDE}")
+        raise ProjsynthError(f"image size {h}x{w} is too small for procedural images; "
+                             f"use sides >= {MIN_SIDE}")
     if kind == "natural":
         return _finish(rng, _NATURAL[theme](rng, h, w))
     return _generated(rng, theme, h, w)
@@ -180,7 +188,8 @@ def _facade(rng: np.random.Generator, view: np.ndarray, texture: np.ndarray, s: 
     ys, xs = np.arange(fh) - rng.uniform(0, py), np.arange(fw) - rng.uniform(0, px)
     iy, ix = np.floor(ys / py).astype(np.int64) + 1, np.floor(xs / px).astype(np.int64) + 1
     inside_y = ys - (iy - 1) * py < py * rng.uniform(0.4, 0.75)
-    inside_x = (xs - (ix - 1) * px < px * rng.uniform(0.35, 0.75)) & (np.abs(np.arange(fw) - fw / 2) < 0.4 * fw)
+    inside_x = xs - (ix - 1) * px < px * rng.uniform(0.35, 0.75)
+    inside_x &= np.abs(np.arange(fw) - fw / 2) < 0.4 * fw  # margins at the facade's ends
     mask = inside_y[:, None] & inside_x[None, :]
     # Each window: dark to sky-reflecting glass, or lit (one in five).
     state = rng.random((iy.max() + 1, ix.max() + 1)).astype(_F32)[iy[:, None], ix[None, :]][mask]
@@ -320,7 +329,8 @@ def _generated(rng: np.random.Generator, theme: str, h: int, w: int) -> np.ndarr
     pal, s = _CARTOON[theme], min(h, w)
     area = h * w / s**2
     c0, c1 = _pick(rng, pal, 25), _pick(rng, pal, 25)
-    t = np.linspace(0, 1, w, dtype=_F32) * np.float32(rng.uniform(-0.5, 0.5)) + np.linspace(0, 1, h, dtype=_F32)[:, None]
+    tilt = np.float32(rng.uniform(-0.5, 0.5))
+    t = np.linspace(0, 1, w, dtype=_F32) * tilt + np.linspace(0, 1, h, dtype=_F32)[:, None]
     t = (t - t.min()) * (1 / (t.max() - t.min()))
     img = cv2.merge([t * (c1[i] - c0[i]) + c0[i] for i in range(3)]).astype(np.uint8)
     _MOTIFS[theme](rng, img, pal, s)
@@ -347,7 +357,8 @@ def _shapes(rng: np.random.Generator, img: np.ndarray, pal: np.ndarray, n: int, 
     """Draw ``n`` polygons, stars, ellipses or slabs: flat, gradient or stripe filled, most outlined."""
     h, w = img.shape[:2]
     cx, cy, r = rng.uniform(0, w, n), rng.uniform(0, h, n), np.maximum(1.5, rng.uniform(*size, n) * s)
-    kind, fill, aspect, turn = rng.integers(4, size=n), rng.random(n), rng.uniform(0.1, 1.0, n), rng.uniform(0, 1, n)
+    kind, fill = rng.integers(4, size=n), rng.random(n)
+    aspect, turn = rng.uniform(0.1, 1.0, n), rng.uniform(0, 1, n)
     colour = np.clip(pal[rng.integers(len(pal), size=(n, 2))] + rng.uniform(-25, 25, (n, 2, 3)), 0, 255)
     ink = rng.uniform(10, 60, (n, 3))
     thick = np.clip(r * rng.uniform(0.04, 0.12, n), 1, 8).astype(int) * (rng.random(n) < 0.7)
@@ -384,8 +395,8 @@ def _pattern_fill(img: np.ndarray, pts: np.ndarray, colour: np.ndarray, angle: f
         return
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillPoly(mask, [pts - (x0, y0)], 255, cv2.LINE_AA)
-    u = np.arange(y1 - y0, dtype=_F32)[:, None] * np.float32(np.sin(angle)) + np.float32(np.cos(angle)) * np.arange(
-        x1 - x0, dtype=_F32)
+    u = np.arange(y1 - y0, dtype=_F32)[:, None] * np.float32(np.sin(angle))
+    u = u + np.float32(np.cos(angle)) * np.arange(x1 - x0, dtype=_F32)
     t = np.floor(u * (1 / stripe)) % 2 if stripe else (u - u.min()) * (1 / (np.ptp(u) + 1e-6))
     c0, dc = colour[0], colour[1] - colour[0]
     paint = cv2.merge([t * np.float32(dc[k]) + np.float32(c0[k]) for k in range(3)]).astype(np.uint8)
@@ -458,7 +469,8 @@ def _firs(rng: np.random.Generator, img: np.ndarray, pal: np.ndarray, s: int) ->
         green = _pick(rng, pal[:2], 25).tolist()
         for k in range(int(rng.integers(2, 4))):
             y = base - size * (0.5 + 0.6 * k)
-            tri = np.array([[x - size * (0.6 - 0.12 * k), y], [x + size * (0.6 - 0.12 * k), y], [x, y - size]])
+            half = size * (0.6 - 0.12 * k)
+            tri = np.array([[x - half, y], [x + half, y], [x, y - size]])
             cv2.fillPoly(img, [tri.astype(np.int32)], green, cv2.LINE_AA)
             cv2.polylines(img, [tri.astype(np.int32)], True, _ink(rng), _thick(rng, size), cv2.LINE_AA)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import FORMAT_VERSION, ProjsynthError, __version__
+from . import FORMAT_VERSION, ProjsynthError
 from .dataset import Sample
 from .flowio import decode_flow_exr, encode_flow_exr
 

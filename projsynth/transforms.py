@@ -40,11 +40,12 @@ _POSE: dict[int, Ranges] = {
     4: {"baseline_deg": (16, 28), "roll_deg": (4, 10), "aim_px": (28, 70), "fov_ratio": (0.8, 1.2),
         "tilt_deg": (18, 34), "distance_ratio": (0.8, 1.2)},
 }  # fmt: skip
+_CURVATURE = [(0.1, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5)]  # distance / radius
 _SHAPE: dict[str, dict[int, Ranges]] = {
     "lens": {s: {"cam_k1": (0.03 * s, 0.07 * s), "cam_k2": (0.0, 0.01 * s), "cam_p": (0.0, 0.002 * s),
                  "proj_k1": (0.0, 0.02 * s)} for s in SEVERITIES},
-    "cylinder": {s: {"curvature": c} for s, c in zip(SEVERITIES, [(0.1, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5)])},
-    "sphere": {s: {"curvature": c} for s, c in zip(SEVERITIES, [(0.1, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5)])},
+    "cylinder": {s: {"curvature": c} for s, c in zip(SEVERITIES, _CURVATURE, strict=True)},
+    "sphere": {s: {"curvature": c} for s, c in zip(SEVERITIES, _CURVATURE, strict=True)},
     "wave": {s: {"wave_amp": (0.008 * s, 0.016 * s), "wave_freq": (0.6, 1.2), "wave_count": (1, 2)}
              for s in SEVERITIES},
     "bumps": {s: {"bump_amp": (0.01 * s, 0.016 * s), "bump_sigma": (0.12, 0.25), "bump_count": (2, 5)}

@@ -1,0 +1,31 @@
+import numpy as np
+
+from projsynth.dataset import make_sample, parse_size, resolve_plan, sample_key
+
+
+def _plan(**kw):
+    args = {"size": (48, 64), "seed": 5, "split": "train", "pairs": 2, "transforms": None, "blend": "paper"} | kw
+    return resolve_plan(**args)
+
+
+def test_sample_is_a_pure_function_of_config_seed_and_id():
+    full, sub = _plan(), _plan(transforms="40,77")
+    k_full = next(k for k in range(full.num_samples) if sample_key(full, k) == (1, 1, 77))
+    k_sub = next(k for k in range(sub.num_samples) if sample_key(sub, k) == (1, 1, 77))
+    a, b = make_sample(full, k_full), make_sample(sub, k_sub)
+    assert a.id == b.id == "train-p00001-r1-t077"
+    assert a.content_hash() == b.content_hash()
+    assert make_sample(full, k_full).content_hash() == a.content_hash()
+
+
+def test_roles_swap_projected_and_background_and_splits_differ():
+    plan = _plan(transforms="0")
+    r0, r1 = make_sample(plan, 0), make_sample(plan, 1)
+    assert r0.params["role"] == "natural_on_generated" and r1.params["role"] == "generated_on_natural"
+    assert r0.params["sources"]["projected"] == r1.params["sources"]["background"]
+    test = make_sample(_plan(transforms="0", split="test"), 0)
+    assert not np.array_equal(test.projected, r0.projected)
+
+
+def test_parse_size():
+    assert parse_size("384x512") == (384, 512)

@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+
+from projsynth.photometric import sample_bilinear
+from projsynth.render import render
+from projsynth.rig import make_scene
+from projsynth.scene import backward, pixel_grid
+from projsynth.transforms import FAMILIES, builtin_table, draw
+
+H, W = 96, 128
+IDENTITY = {"contrast": 1.0, "brightness": 0.0, "beta": 1.0, "alpha": 1.0, "alpha_var": 0.0, "gamma": 0.0,
+            "noise_mu": 0.0, "noise_sigma": 0.0}
+
+
+def _scene(family, seed=0, severity=3):
+    cfg = next(c for c in builtin_table().configs if c.family == family and c.severity == severity)
+    return make_scene(family, cfg.geometry, np.random.default_rng(seed), (H, W))[0]
+
+
+def test_sample_bilinear_exact_weights():
+    img = np.zeros((4, 5, 4), np.uint8)
+    img[1, 2], img[1, 3], img[2, 2], img[2, 3] = 10, 50, 90, 250
+    out = sample_bilinear(img, np.array([2.25, 2.0, 3.0]), np.array([1.5, 1.0, 2.0]))
+    top, bottom = 10 + 0.25 * 40, 90 + 0.25 * 160
+    np.testing.assert_allclose(out[:, 0], [top + 0.5 * (bottom - top), 10, 250], atol=1e-5)
+
+
+@pytest.mark.parametrize("family", ["planar", "sphere_convex", "wave"])
+def test_captured_is_projected_sampled_at_exact_backward_positions(family):
+    # a coordinate-encoding projected image: R = x, G = y (exact in uint8 for x, y < 256)
+    ys, xs = np.mgrid[0:H, 0:W]
+    coded = np.dstack([xs, ys, np.zeros_like(xs)]).astype(np.uint8)
+    scene = _scene(family)
+    out = render(coded, np.zeros_like(coded), scene, IDENTITY, "paper", np.random.default_rng(0))
+    xy, lit = backward(scene, pixel_grid(H, W))
+    lit = lit.reshape(H, W)
+    got = out.captured[lit].astype(float)
+    want = xy.T.reshape(H, W, 2)[lit]
+    # bilinear interpolation of a linear ramp is exact; the uint8 output rounds to 0.5
+    assert np.abs(got[:, :2] - want).max() <= 0.5 + 1e-6
+    assert (out.captured[~lit] == 0).all()  # unlit camera pixels show the (black) background only
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_flow_aligns_better_than_any_half_or_one_pixel_shift(family):
+    rng = np.random.default_rng(5)
+    import cv2
+
+    tex = sum(cv2.resize(rng.uniform(0, 255, (H // s, W // s, 3)).astype(np.float32), (W, H),
+                         interpolation=cv2.INTER_CUBIC) for s in (2, 4, 8)) / 3
+    proj = np.clip(tex, 0, 255).astype(np.uint8)
+    out = render(proj, np.full_like(proj, 90), _scene(family, 1), IDENTITY, "paper", rng)
+    yv, xv = np.nonzero(out.valid)
+    rgba = np.dstack([out.captured, out.captured[..., :1]])
+
+    def err(dx, dy):
+        x = np.clip(xv + out.flow[yv, xv, 0] + dx, 0, W - 1)
+        y = np.clip(yv + out.flow[yv, xv, 1] + dy, 0, H - 1)
+        return np.abs(sample_bilinear(rgba, x, y)[:, :3] - proj[yv, xv]).mean()
+
+    shifts = [(a * s, b * s) for s in (0.5, 1.0) for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+    assert err(0, 0) < min(err(dx, dy) for dx, dy in shifts)
+
+
+def test_physical_blend_renders_and_records_darker_night():
+    cfgs = {c.condition: c for c in builtin_table().configs if c.family == "planar" and c.severity == 1}
+    proj = np.full((H, W, 3), 200, np.uint8)
+    bg = np.full((H, W, 3), 160, np.uint8)
+    means = {}
+    for cond in ("night", "daylight"):
+        rng = np.random.default_rng(0)
+        scene = make_scene("planar", cfgs[cond].geometry, rng, (H, W))[0]
+        out = render(proj, bg, scene, draw(rng, cfgs[cond].photometry), "physical", rng)
+        means[cond] = out.captured[~out.valid].mean()  # background only: ambient light
+    assert means["night"] < means["daylight"]
