@@ -305,7 +305,7 @@ def _ocean(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     waves = cv2.resize(waves * np.sqrt(d), (w, fh), interpolation=cv2.INTER_CUBIC)
     t = np.linspace(0, 1, fh, dtype=_F32)[:, None] ** 0.6
     far, near = _c(_pick(rng, _WATER[:1])), _c(_pick(rng, _WATER[1:]))
-    water = (1 + 0.22 * waves) * (t * (near - far) + far)
+    water = (1 + 0.3 * waves) * (t * (near - far) + far)
     foam = (waves > rng.uniform(0.9, 1.4)) & (rng.random((fh, w), dtype=_F32) < 0.35)
     water[:, foam] = _CLOUD[0][:, None]
     img[:, hz:] = water

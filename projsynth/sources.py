@@ -89,7 +89,10 @@ def load_image(path: Path) -> np.ndarray:
         raise ProjsynthError(f"{path}: cannot read image ({reason}); remove it or fix it") from err
     if data.size == 0:
         raise ProjsynthError(f"{path}: cannot read image (empty file); remove it or fix it")
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    try:
+        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error as err:  # some corrupt headers raise instead of returning None
+        raise ProjsynthError(f"{path}: cannot read image (decoder error); remove it or fix it") from err
     if image is None or image.size == 0:
         raise ProjsynthError(f"{path}: cannot read image (not a complete image file); remove it or fix it")
     if image.dtype == np.uint16:

@@ -30,7 +30,7 @@ KINDS = (
     "bumps",
 )
 _HIT_TOL = 1e-10  # |g(t)| at convergence for height fields, in world units (~1e-7 px)
-_MAX_SAFE_STEPS = 400
+_MAX_SAFE_STEPS = 48  # rays still short of the root then (near-grazing) count as misses
 _NEAR = 1e-5  # safe stepping hands over to Newton this close to the root (world units)
 
 
@@ -234,6 +234,8 @@ def _heightfield(field_: _Wave | _Bumps, o: np.ndarray, d: np.ndarray) -> np.nda
             if near.all():
                 break
             t = np.where(near, t, t - g / lipschitz)
+        near = g > -_NEAR
+        idx, t = idx[near], t[near]
         for _ in range(4):
             g, gp = g_and_slope(idx, t)
             t = t - g / np.where(gp > 1e-12, gp, np.inf)

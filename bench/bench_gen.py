@@ -1,0 +1,109 @@
+"""Generation throughput vs. its I/O floor, peak memory per worker, and random-read latency.
+
+Usage: python bench/bench_gen.py [--size 384x512] [--samples 64]
+
+All figures come from one run so their ratios are comparable:
+* gen 1 / 2 workers: ``projsynth.generate.generate`` end to end (samples/s).
+* floor: per sample, decode two PNG sources + ``cv2.remap`` + EXR encode + HDF5 write, i.e. what any
+  generator writing this format must do; the ratio gen/floor is the cost of the simulation itself.
+* peak RSS of a worker rendering and writing one shard (``ru_maxrss`` of a child process).
+* random read: one sample (both images + flow EXR decode) from a finished dataset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import platform
+import resource
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+
+from projsynth.dataset import make_sample, parse_size, resolve_plan, source_images
+from projsynth.flowio import encode_flow_exr
+from projsynth.generate import _write_one, generate
+from projsynth.shards import ShardReader
+
+
+def _gen_rate(plan, shard_size: int, workers: int) -> float:
+    with tempfile.TemporaryDirectory() as d:
+        t = time.perf_counter()
+        generate(plan, Path(d) / "ds", shard_size=shard_size, workers=workers)
+        return plan.num_samples / (time.perf_counter() - t)
+
+
+def _floor_rate(plan, n: int) -> float:
+    h, w = plan.size
+    nat, gen, _ = source_images(plan, 0)
+    with tempfile.TemporaryDirectory() as d:
+        pngs = [cv2.imencode(".png", im)[1].tobytes() for im in (nat, gen)]
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+        mx, my = xs * 0.97 + 3.3, ys * 1.02 - 2.1
+        flow = np.dstack([mx - xs, my - ys]).astype(np.float32)
+        valid = np.ones((h, w), bool)
+        t = time.perf_counter()
+        with h5py.File(Path(d) / "floor.h5", "w") as f:
+            opts = {"compression": "lzf", "chunks": (1, h, w, 3)}
+            a = f.create_dataset("a", (n, h, w, 3), np.uint8, **opts)
+            b = f.create_dataset("b", (n, h, w, 3), np.uint8, **opts)
+            e = f.create_dataset("e", (n,), h5py.vlen_dtype(np.uint8))
+            for i in range(n):
+                src = [cv2.imdecode(np.frombuffer(p, np.uint8), cv2.IMREAD_COLOR) for p in pngs]
+                a[i] = src[0]
+                b[i] = cv2.remap(src[1], mx, my, cv2.INTER_LINEAR)
+                e[i] = np.frombuffer(encode_flow_exr(flow, valid, "floor"), np.uint8)
+        return n / (time.perf_counter() - t)
+
+
+def _child_peak(job) -> int:
+    _write_one(job)
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+
+
+def _read_ms(plan, shard_size: int) -> float:
+    with tempfile.TemporaryDirectory() as d:
+        generate(plan, Path(d) / "ds", shard_size=shard_size)
+        reader = ShardReader(Path(d) / "ds")
+        rng = np.random.default_rng(0)
+        times = []
+        for k in rng.integers(0, len(reader), 50):
+            t = time.perf_counter()
+            reader.read(int(k))
+            times.append(time.perf_counter() - t)
+        reader.close()
+        return 1e3 * statistics.median(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", default="384x512")
+    ap.add_argument("--samples", type=int, default=64, help="samples per measurement (even)")
+    args = ap.parse_args()
+    size = parse_size(args.size)
+    half = args.samples // 2
+    # transforms spread over every family; 2 shards so 2 workers both have one
+    plan = resolve_plan(size=size, seed=0, split="train", pairs=1, blend="paper",
+                        transforms=",".join(str(i) for i in np.linspace(0, 159, half).astype(int)))  # fmt: skip
+    make_sample(plan, 0)  # warm caches and imports
+    print(f"machine: {platform.machine()} {mp.cpu_count()} cores, python {platform.python_version()}")
+    print(f"size {size[0]}x{size[1]}, {plan.num_samples} samples per gen run, shards of {half}")
+    r1 = _gen_rate(plan, half, 1)
+    r2 = _gen_rate(plan, half, 2)
+    fl = _floor_rate(plan, plan.num_samples)
+    print(f"gen  1 worker : {r1:6.1f} samples/s")
+    print(f"gen  2 workers: {r2:6.1f} samples/s  ({r2 / r1:.2f}x of 1 worker)")
+    print(f"floor 1 core  : {fl:6.1f} samples/s  (gen 1 worker is {fl / r1:.1f}x slower than the floor)")
+    with mp.get_context("spawn").Pool(1) as pool:
+        peak = pool.apply(_child_peak, ((plan, Path(tempfile.mkdtemp()), half, 0, plan.config_hash()),))
+    print(f"peak RSS of one worker writing a {half}-sample shard: {peak / 1024:.0f} MiB")
+    print(f"random read (images + EXR decode): {_read_ms(plan, half):.2f} ms median of 50")
+
+
+if __name__ == "__main__":
+    main()
