@@ -72,7 +72,7 @@ class Plan:
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """``"384x512"`` -> ``(384, 512)`` (height x width), both in ``[32, 4096]`` and multiples of 2."""
+    """``"384x512"`` -> ``(384, 512)`` (height x width), both in ``[32, 4096]``."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:

@@ -25,6 +25,8 @@ def export(root: Path, out: Path, limit: int | None = None) -> int:
     Returns:
         The number of samples exported.
     """
+    if limit is not None and limit < 1:
+        raise ProjsynthError(f"--limit: must be >= 1, got {limit}")
     manifest = load_manifest(root)
     try:
         out.mkdir(parents=True, exist_ok=True)

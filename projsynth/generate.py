@@ -7,7 +7,6 @@ which the next run removes. Finished shards (same config hash) are skipped.
 
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,6 +18,7 @@ from .shards import (
     MANIFEST,
     PLAN_FILE,
     assemble_manifest,
+    read_json,
     shard_is_complete,
     shard_name,
     write_json_atomic,
@@ -90,10 +90,9 @@ def generate(
 
 def merge(out: Path) -> dict:
     """Assemble ``manifest.json`` once every shard of the plan in ``out`` exists (job arrays)."""
-    try:
-        info = json.loads((out / PLAN_FILE).read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise ProjsynthError(f"{out / PLAN_FILE}: cannot read the plan ({e}); is this a projsynth dataset?") from e
+    info = read_json(out / PLAN_FILE, "plan")
+    if not {"num_shards", "config_hash", "shard_size"} <= info.keys():
+        raise ProjsynthError(f"{out / PLAN_FILE}: not a projsynth plan; regenerate the dataset")
     missing = [j for j in range(info["num_shards"]) if not shard_is_complete(out / shard_name(j), info["config_hash"])]
     if missing:
         raise ProjsynthError(f"{out}: {len(missing)} of {info['num_shards']} shards missing or incomplete "
@@ -109,8 +108,8 @@ def _prepare_dir(out: Path, info: dict) -> None:
     plan_path = out / PLAN_FILE
     if plan_path.exists():
         try:
-            old = json.loads(plan_path.read_text())
-        except (OSError, json.JSONDecodeError):
+            old = read_json(plan_path, "plan")
+        except ProjsynthError:
             old = {}
         if old.get("config_hash") != info["config_hash"] or old.get("shard_size") != info["shard_size"]:
             raise ProjsynthError(f"--out {out}: holds a dataset made with other options (see {plan_path}); "

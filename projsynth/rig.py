@@ -1,7 +1,9 @@
 """Build a projector-camera :class:`~projsynth.scene.Scene` from a configuration's drawn parameters.
 
 Units: the projector's optical axis meets the surface at distance 1 (the local origin of the
-surface). Angles in the table are degrees; everything here is radians.
+surface). Angles in the table are degrees; everything here is radians. Pixel-valued ranges
+(``aim_px``, ``principal_jitter_px``) are for a 512-px-wide frame and scale with the width, so a
+configuration means the same geometry, and the same flow relative to the image, at any ``--size``.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from .scene import Scene, look_at, rotation_about
 from .surface import Surface
 from .transforms import draw
 
+REFERENCE_WIDTH = 512
+
 
 def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[int, int]) -> tuple[Scene, dict]:
     """Draw a scene of ``family`` inside ``ranges`` with ``rng``.
@@ -23,6 +27,7 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
     """
     height, width = size
     g = draw(rng, ranges)
+    px = width / REFERENCE_WIDTH  # pixel-valued ranges are given for 512-px-wide frames
     # Directions and signs are drawn after the ranges, always in this order.
     sign = lambda: float(rng.choice([-1.0, 1.0]))  # noqa: E731
     extra = {
@@ -35,9 +40,8 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
         "distortion_sign": sign(),
     }
     f = 0.5 * width / np.tan(np.radians(g["fov_deg"]) / 2)
-    jx, jy = g["principal_jitter_px"] * np.cos(extra["principal_azimuth"]), g["principal_jitter_px"] * np.sin(
-        extra["principal_azimuth"]
-    )
+    jitter = g["principal_jitter_px"] * px
+    jx, jy = jitter * np.cos(extra["principal_azimuth"]), jitter * np.sin(extra["principal_azimuth"])
     cx, cy = (width - 1) / 2, (height - 1) / 2
     proj_dist = cam_dist = (0.0,) * 5
     if family == "lens":
@@ -53,7 +57,7 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
     target = np.array([0.0, 0.0, 1.0])
     b_axis = np.array([np.cos(extra["baseline_azimuth"]), np.sin(extra["baseline_azimuth"]), 0.0])
     C = target + g["distance_ratio"] * (rotation_about(b_axis, np.radians(g["baseline_deg"])) @ -target)
-    aim = (g["aim_px"] * np.cos(extra["aim_azimuth"]), g["aim_px"] * np.sin(extra["aim_azimuth"]))
+    aim = (g["aim_px"] * px * np.cos(extra["aim_azimuth"]), g["aim_px"] * px * np.sin(extra["aim_azimuth"]))
     R = look_at(C, target, aim, extra["roll_sign"] * np.radians(g["roll_deg"]), camera)
 
     t_axis = np.array([np.cos(extra["tilt_azimuth"]), np.sin(extra["tilt_azimuth"]), 0.0])

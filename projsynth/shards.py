@@ -120,16 +120,30 @@ def assemble_manifest(root: Path, plan_info: dict, num_shards: int, shard_size: 
     return manifest
 
 
+_MANIFEST_KEYS = ("config_hash", "size", "shard_size", "num_samples", "shards", "samples")
+
+
+def read_json(path: Path, what: str) -> dict:
+    """A JSON object from ``path``; any problem is one ProjsynthError naming the file."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ProjsynthError(f"{path}: no {what}; is this a projsynth dataset (finished `gen` or `merge`)?") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ProjsynthError(f"{path}: unreadable {what} ({e}); regenerate it") from e
+    if not isinstance(data, dict):
+        raise ProjsynthError(f"{path}: not a {what} (expected a JSON object); regenerate it")
+    return data
+
+
 def load_manifest(root: Path) -> dict:
     path = Path(root) / MANIFEST
-    try:
-        manifest = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ProjsynthError(f"{path}: no manifest; finish `projsynth gen` (or run `projsynth merge`) first") from None
-    except (OSError, json.JSONDecodeError) as e:
-        raise ProjsynthError(f"{path}: unreadable manifest ({e}); re-run `projsynth merge {root}`") from e
+    manifest = read_json(path, "manifest")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise ProjsynthError(f"{path}: format version {manifest.get('format_version')} is not {FORMAT_VERSION}")
+    missing = [k for k in _MANIFEST_KEYS if k not in manifest]
+    if missing:
+        raise ProjsynthError(f"{path}: manifest lacks {', '.join(missing)}; re-run `projsynth merge {root}`")
     return manifest
 
 

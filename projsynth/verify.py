@@ -12,7 +12,7 @@ import numpy as np
 from . import ProjsynthError
 from .dataset import Sample
 from .flowio import decode_flow_exr
-from .shards import PLAN_FILE, file_sha256, load_manifest, shard_name
+from .shards import file_sha256, load_manifest, shard_name
 
 BUCKETS = (("s0-10", 0.0, 10.0), ("s10-40", 10.0, 40.0), ("s40+", 40.0, np.inf))
 
@@ -47,8 +47,8 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
     manifest = load_manifest(root)
     problems = []
     h, w = manifest["size"]
-    expected = iter(manifest["samples"])
     for entry in manifest["shards"]:
+        expected = iter(manifest["samples"][entry["first_sample"] : entry["first_sample"] + entry["count"]])
         path = root / entry["file"]
         if entry["file"] != shard_name(entry["index"]):
             problems.append(f"{path}: manifest names shard {entry['index']} {entry['file']!r}")
@@ -124,7 +124,7 @@ def inspect(root: Path) -> dict:
         "total": _summary(total),
         "families": {k: _summary(v) for k, v in sorted(families.items())},
         "histogram_edges_px": [e if np.isfinite(e) else None for e in edges],
-        "plan": json.loads((root / PLAN_FILE).read_text()).get("config_hash"),
+        "config_hash": manifest["config_hash"],
     }
 
 

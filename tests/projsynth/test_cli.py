@@ -1,0 +1,215 @@
+"""The ``projsynth`` command line: help everywhere, one-line errors naming the option or file, tables."""
+
+import json
+import re
+
+import pytest
+import typer
+
+from projsynth.cli import app
+
+COMMANDS = {"gen", "merge", "verify", "inspect", "export", "preview", "transforms"}
+SMALL = ["--pairs", "1", "--size", "48x64", "--transforms", "0-3", "--shard-size", "2"]  # 8 samples, 4 shards
+
+
+def test_every_command_has_help(cli):
+    group = typer.main.get_command(app)
+    assert set(group.commands) == COMMANDS
+    result = cli.run("--help")
+    assert result.exit_code == 0 and all(name in result.stdout for name in COMMANDS)
+    for name, command in group.commands.items():
+        result = cli.run(name, "--help")
+        assert result.exit_code == 0, (name, result.stderr)
+        summary = command.help.splitlines()[0].split(";")[0]
+        assert summary and summary in " ".join(result.stdout.split()), name
+
+
+# --- gen: bad options -------------------------------------------------------------------------------
+
+BAD_GEN = [
+    (["--size", "10x10"], "--size"),
+    (["--size", "abc"], "--size"),
+    (["--size", "64x96x3"], "--size"),
+    (["--transforms", "0-999"], "--transforms"),
+    (["--transforms", "a-b"], "--transforms"),
+    (["--transforms", "3-1"], "--transforms"),
+    (["--split", "foo"], "--split"),
+    (["--blend", "foo"], "--blend"),
+    (["--pairs", "0"], "--pairs"),
+    (["--seed", "-1"], "--seed"),
+    (["--shard-size", "0"], "--shard-size"),
+    (["--workers", "0"], "--workers"),
+    (["--shards", "5-2"], "--shards"),
+    (["--shards", "x"], "--shards"),
+    (["--shards", "-1"], "--shards"),
+    (["--shards", "0-4"], "--shards"),  # the plan has shards 0-3
+    (["--shards", "4"], "--shards"),
+]
+
+
+@pytest.mark.parametrize(("extra", "option"), BAD_GEN, ids=[" ".join(e) for e, _ in BAD_GEN])
+def test_gen_rejects_bad_options(cli, tmp_path, extra, option):
+    out = tmp_path / "ds"
+    line = cli.assert_one_line_error(cli.run("gen", "--out", out, *SMALL, *extra), option)
+    assert line.startswith(f"{cli.ERROR_PREFIX}{option}")
+    assert not out.exists()  # nothing is created before the options are checked
+
+
+def test_gen_natural_without_generated(cli, tmp_path):
+    (tmp_path / "nat").mkdir()
+    out = tmp_path / "ds"
+    cli.assert_one_line_error(cli.run("gen", "--out", out, *SMALL, "--natural", tmp_path / "nat"),
+                              "--natural", "--generated")  # fmt: skip
+    assert not out.exists()
+
+
+def test_gen_empty_image_folder(cli, tmp_path):
+    for name in ("nat", "gen"):
+        (tmp_path / name).mkdir()
+    result = cli.run("gen", "--out", tmp_path / "ds", *SMALL, "--natural", tmp_path / "nat",
+                     "--generated", tmp_path / "gen")  # fmt: skip
+    cli.assert_one_line_error(result, "--natural", tmp_path / "nat")
+
+
+def test_gen_out_under_a_regular_file(cli, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    cli.assert_one_line_error(cli.run("gen", "--out", blocker / "ds", *SMALL), "--out", blocker / "ds")
+    assert blocker.read_text() == "not a directory"
+
+
+def test_gen_refuses_an_out_made_with_other_options(cli, planar_ds, copy_dataset):
+    root = copy_dataset(planar_ds)
+    before = cli.shard_mtimes(root)
+    seed12 = [a if a != "11" else "12" for a in cli.PLANAR]
+    for options in ([*seed12, "--shard-size", "8"], [*cli.PLANAR, "--shard-size", "13"]):
+        cli.assert_one_line_error(cli.run("gen", "--out", root, *options), "--out", root / "dataset.json")
+    assert cli.shard_mtimes(root) == before
+    assert cli.run("verify", root, "-q").exit_code == 0
+
+
+def test_gen_refuses_shards_without_a_plan(cli, planar_ds, copy_dataset):
+    root = copy_dataset(planar_ds)
+    (root / "dataset.json").unlink()
+    cli.assert_one_line_error(cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8"), "--out")
+
+
+def test_type_errors_exit_2(cli, tmp_path):
+    # Parsed by typer itself (a multi-line usage message, not ours): only the exit status is checked.
+    result = cli.run("gen", "--out", tmp_path / "ds", "--pairs", "many")
+    assert result.exit_code == 2 and "--pairs" in result.stderr
+    assert cli.run("gen").exit_code == 2  # --out is required
+
+
+# --- other commands: bad options --------------------------------------------------------------------
+
+
+def test_preview_count_zero(cli, mixed_ds, tmp_path):
+    cli.assert_one_line_error(cli.run("preview", mixed_ds, "--out", tmp_path / "p.png", "--count", "0"), "--count")
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_export_out_under_a_regular_file(cli, mixed_ds, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    cli.assert_one_line_error(cli.run("export", mixed_ds, "--out", blocker / "e", "--limit", "1"), "--out")
+
+
+def test_export_negative_limit(cli, mixed_ds, tmp_path):
+    cli.assert_one_line_error(cli.run("export", mixed_ds, "--out", tmp_path / "e", "--limit", "-1"), "--limit")
+
+
+# --- transform tables -------------------------------------------------------------------------------
+
+
+def test_transforms_listing(cli):
+    result = cli.run("transforms")
+    assert result.exit_code == 0
+    lines = result.stdout.splitlines()
+    assert lines[0] == "table builtin-v1: 160 configurations" and len(lines) == 161
+    assert [int(line.split()[0]) for line in lines[1:]] == list(range(160))
+
+
+def test_toml_round_trip_reproduces_the_builtin_table(cli, builtin_toml, planar_ds, copy_dataset):
+    builtin = json.loads(cli.run("transforms", "--json").stdout)
+    result = cli.run("transforms", "--json", "--table", builtin_toml)
+    assert result.exit_code == 0, result.stderr
+    reloaded = json.loads(result.stdout)
+    assert len(builtin["transforms"]) == 160
+    assert reloaded == builtin  # version included: the TOML carries it
+
+    # Same table, same config hash: a dataset made with the built-in table resumes with --table.
+    root = copy_dataset(planar_ds)
+    result = cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8", "--table", builtin_toml)
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (0, 5, 5)
+    assert json.loads((root / "dataset.json").read_text())["table_digest"] == cli.manifest(planar_ds)["table_digest"]
+
+
+def test_an_edited_table_changes_the_config_hash(cli, builtin_toml, planar_ds, copy_dataset, tmp_path):
+    edited = tmp_path / "edited.toml"
+    text = builtin_toml.read_text()
+    i = text.index("id = 150\n")  # a row the PLANAR datasets do not even use
+    edited.write_text(text[:i] + text[i:].replace("bump_sigma = [0.12,", "bump_sigma = [0.13,", 1))
+    assert edited.read_text() != text
+    cli.assert_one_line_error(
+        cli.run("gen", "--out", copy_dataset(planar_ds), *cli.PLANAR, "--shard-size", "8", "--table", edited),
+        "--out", "made with other options",
+    )  # fmt: skip
+
+
+def _first_row_edit(text: str, old: str, new: str) -> str:
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+BAD_TABLES = {
+    "unparseable": lambda t: "[[transform]\nid = 0\n",
+    "no rows": lambda t: 'version = "x"\n',
+    "missing keys": lambda t: '[[transform]]\nid = 0\nfamily = "planar"\n',
+    "missing range": lambda t: re.sub(r"\ntilt_deg = \[[^\]]*\]", "", t, count=1),
+    "low > high": lambda t: _first_row_edit(t, "baseline_deg = [1.0, 4.0]", "baseline_deg = [4.0, 1.0]"),
+    "out of bounds": lambda t: _first_row_edit(t, "baseline_deg = [1.0, 4.0]", "baseline_deg = [1.0, 400.0]"),
+    "not a pair": lambda t: _first_row_edit(t, "baseline_deg = [1.0, 4.0]", "baseline_deg = 2.0"),
+    "unknown family": lambda t: _first_row_edit(t, 'family = "planar"', 'family = "torus"'),
+    "unknown parameter": lambda t: _first_row_edit(t, "baseline_deg =", "baseline_rad ="),
+    "duplicate id": lambda t: _first_row_edit(t, "id = 1\n", "id = 0\n"),
+    "not utf-8": lambda t: "\udcff",
+}
+NEEDLES = {"low > high": "baseline_deg", "out of bounds": "baseline_deg", "unknown family": "torus",
+           "unknown parameter": "baseline_rad", "missing range": "tilt_deg", "missing keys": "geometry"}  # fmt: skip
+
+
+@pytest.mark.parametrize("command", ["gen", "transforms"])
+@pytest.mark.parametrize("kind", list(BAD_TABLES))
+def test_bad_table_is_one_line_naming_the_file(cli, builtin_toml, tmp_path, kind, command):
+    path = tmp_path / "table.toml"
+    path.write_bytes(BAD_TABLES[kind](builtin_toml.read_text()).encode("utf-8", "surrogateescape"))
+    out = tmp_path / "ds"
+    args = ["gen", "--out", out, *SMALL] if command == "gen" else ["transforms", "--json"]
+    cli.assert_one_line_error(cli.run(*args, "--table", path), path, NEEDLES.get(kind, ""))
+    assert not out.exists()
+
+
+def test_missing_table_file(cli, tmp_path):
+    path = tmp_path / "nope.toml"
+    cli.assert_one_line_error(cli.run("transforms", "--table", path), path)
+
+
+def test_a_small_user_table(cli, builtin_toml, tmp_path):
+    text = builtin_toml.read_text()
+    rows = text.split("[[transform]]\n")
+    small = tmp_path / "two.toml"  # rows 37 and 157 of the built-in table, renumbered 0 and 1
+    small.write_text('version = "two"\n\n' + "".join("[[transform]]\n" + re.sub(r"^id = \d+", f"id = {i}", r)
+                                                 for i, r in enumerate((rows[38], rows[158]))))  # fmt: skip
+    listing = json.loads(cli.run("transforms", "--json", "--table", small).stdout)
+    assert listing["version"] == "two" and [t["name"] for t in listing["transforms"]] == [
+        "lens-s4-daylight", "bumps-s4-daylight"]  # fmt: skip
+    cli.assert_one_line_error(cli.run("gen", "--out", tmp_path / "x", *SMALL, "--table", small), "--transforms")
+    out = tmp_path / "ds"
+    result = cli.run("gen", "--out", out, "--pairs", "1", "--size", "48x64", "--table", small, "-q")
+    assert result.exit_code == 0, result.stderr
+    manifest = cli.manifest(out)
+    assert manifest["table_version"] == "two" and manifest["transforms"] == [0, 1]
+    assert [s["id"] for s in manifest["samples"]] == [f"train-p00000-r{r}-t00{t}" for r in (0, 1) for t in (0, 1)]
+    assert cli.run("verify", out, "-q").exit_code == 0

@@ -1,0 +1,281 @@
+"""``projsynth gen`` end to end: determinism, resuming after kill -9, job-array subsets, a full disk."""
+
+import errno
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from projsynth import ProjsynthError, shards
+from projsynth.dataset import parse_size, resolve_plan
+from projsynth.generate import generate
+from projsynth.shards import ShardReader, shard_is_complete
+from projsynth.verify import verify
+
+# --- determinism ------------------------------------------------------------------------------------
+
+
+def test_samples_do_not_depend_on_workers_or_shard_size(cli, planar_ds, tmp_path):
+    other = tmp_path / "w1-s13"
+    result = cli.run("gen", "--out", other, *cli.PLANAR, "--shard-size", "13", "--workers", "1", "-q")
+    assert result.exit_code == 0, result.stderr
+
+    a, b = cli.manifest(planar_ds), cli.manifest(other)
+    assert (a["shard_size"], len(a["shards"])) == (8, 5)
+    assert (b["shard_size"], len(b["shards"])) == (13, 4)
+    assert [s["count"] for s in b["shards"]] == [13, 13, 13, 1]
+    assert a["num_samples"] == b["num_samples"] == 40
+    assert a["config_hash"] == b["config_hash"]  # the shard size is not part of the samples' config
+    assert a["samples"] == b["samples"]
+    assert len({s["sha256"] for s in a["samples"]}) == 40  # every sample differs from every other
+
+    ra, rb = ShardReader(planar_ds), ShardReader(other)
+    try:
+        for k in (0, 7, 8, 13, 26, 39):  # on both sides of shard boundaries of either layout
+            x, y = ra.read(k), rb.read(k)
+            for key in ("projected", "captured", "valid"):
+                np.testing.assert_array_equal(x[key], y[key], err_msg=f"{key} of sample {k}")
+            assert x["flow"].dtype == y["flow"].dtype == np.float32
+            np.testing.assert_array_equal(x["flow"].view(np.uint32), y["flow"].view(np.uint32))
+            assert x["params"] == y["params"]
+            assert x["params"]["sample_id"] == a["samples"][k]["id"]
+    finally:
+        ra.close()
+        rb.close()
+
+    for root in (planar_ds, other):
+        result = cli.run("verify", root)
+        assert result.exit_code == 0, result.stderr
+        assert cli.visible_lines(result.stderr)[-1] == f"{root}: OK"
+
+
+def test_seed_changes_every_sample(cli, planar_ds, tmp_path):
+    out = tmp_path / "seed12"
+    args = [a if a != "11" else "12" for a in cli.PLANAR]
+    assert "12" in args
+    assert cli.run("gen", "--out", out, *args, "--shard-size", "8", "-q").exit_code == 0
+    a, b = cli.manifest(planar_ds)["samples"], cli.manifest(out)["samples"]
+    assert [s["id"] for s in a] == [s["id"] for s in b]  # ids are (pair, role, transform) only
+    assert all(x["sha256"] != y["sha256"] for x, y in zip(a, b, strict=True))
+    ra, rb = ShardReader(planar_ds), ShardReader(out)
+    try:  # the source images themselves come from the seed
+        assert not np.array_equal(ra.read(0)["projected"], rb.read(0)["projected"])
+    finally:
+        ra.close()
+        rb.close()
+
+
+# --- interruption and resuming ----------------------------------------------------------------------
+
+KILL_ARGS = ["--size", "96x128", "--pairs", "1", "--shard-size", "4", "--transforms", "0-39"]  # 20 shards
+
+
+def _only_complete_shards(root: Path) -> list[str]:
+    """Assert every ``shard-*.h5`` opens and is finished; only ``*.tmp`` may be partial. Returns their names."""
+    names = []
+    for p in sorted(root.iterdir()):
+        if p.name.endswith(".tmp"):
+            continue
+        assert p.name == "dataset.json" or (p.name.startswith("shard-") and p.suffix == ".h5"), p.name
+        if p.suffix != ".h5":
+            continue
+        with h5py.File(p, "r") as f:  # raises if the file is partial
+            assert bool(f.attrs["complete"]) and int(f.attrs["count"]) == 4
+            assert f["projected"].shape == (4, 96, 128, 3) and len(f["sample_hash"]) == 4
+        names.append(p.name)
+    return names
+
+
+def test_kill_9_then_resume_gives_the_uninterrupted_dataset(cli, tmp_path):
+    out = tmp_path / "killed"
+    cmd = [cli.exe(), "gen", "--out", str(out), *KILL_ARGS, "-q"]
+    with open(tmp_path / "stderr.txt", "wb") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        try:
+            deadline = time.monotonic() + 120
+            while proc.poll() is None and not any(out.glob("shard-*.h5")) and time.monotonic() < deadline:
+                time.sleep(0.002)
+            assert proc.poll() is None, "gen finished before it could be killed; enlarge KILL_ARGS"
+            os.kill(proc.pid, signal.SIGKILL)
+        finally:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+
+    assert not (out / "manifest.json").exists()
+    done = _only_complete_shards(out)
+    assert 1 <= len(done) < 20
+    before = cli.shard_mtimes(out)
+
+    result = cli.run("gen", "--out", out, *KILL_ARGS)  # the same command, resumed
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (20 - len(done), len(done), 20)
+    after = cli.shard_mtimes(out)
+    assert {k: after[k] for k in before} == before  # finished shards were skipped, not rewritten
+    assert len(after) == 20 and not list(out.glob("*.tmp"))
+    assert verify(out) == []
+
+    ref = tmp_path / "uninterrupted"
+    assert cli.run("gen", "--out", ref, *KILL_ARGS, "-q").exit_code == 0
+    a, b = cli.manifest(out), cli.manifest(ref)
+    assert a["samples"] == b["samples"]
+    assert [s["sha256"] for s in a["shards"]] == [s["sha256"] for s in b["shards"]]  # byte-identical files
+
+
+def test_rerunning_a_finished_command_writes_nothing(cli, planar_ds, copy_dataset):
+    root = copy_dataset(planar_ds)
+    before, manifest = cli.shard_mtimes(root), cli.manifest(root)
+    time.sleep(0.01)
+    result = cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8", "--workers", "2")
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (0, 5, 5)
+    assert "complete, manifest written" in result.stderr
+    assert cli.shard_mtimes(root) == before
+    assert cli.manifest(root) == manifest
+
+
+def test_leftover_tmp_files_are_removed_on_resume(cli, planar_ds, copy_dataset):
+    root = copy_dataset(planar_ds)
+    (root / "shard-00003.h5").unlink()
+    (root / "shard-00003.h5.tmp").write_bytes(b"\x89HDF partial")
+    result = cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8")
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (1, 4, 5)
+    assert not list(root.glob("*.tmp"))
+    assert cli.manifest(root)["samples"] == cli.manifest(planar_ds)["samples"]
+
+
+# --- job arrays: --shards A-B -----------------------------------------------------------------------
+
+
+def test_shard_subsets_assemble_the_one_shot_dataset(cli, planar_ds, tmp_path):
+    out = tmp_path / "array"
+    opts = [*cli.PLANAR, "--shard-size", "8"]
+
+    result = cli.run("gen", "--out", out, *opts, "--shards", "0-1")
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (2, 0, 5) and "manifest pending" in result.stderr
+    assert sorted(cli.shard_mtimes(out)) == ["shard-00000.h5", "shard-00001.h5"]
+    assert not (out / "manifest.json").exists()
+    cli.assert_one_line_error(cli.run("merge", out), "3 of 5", "shard-00002.h5")
+
+    result = cli.run("gen", "--out", out, *opts, "--shards", "4")  # a single index
+    assert result.exit_code == 0 and cli.summary(result) == (1, 0, 5)
+    assert not (out / "manifest.json").exists()
+    cli.assert_one_line_error(cli.run("merge", out), "2 of 5", "shard-00002.h5")
+
+    result = cli.run("gen", "--out", out, *opts, "--shards", "2-3")
+    assert result.exit_code == 0 and cli.summary(result) == (2, 0, 5)
+    assert "complete, manifest written" in result.stderr
+    one_shot, assembled = cli.manifest(planar_ds), cli.manifest(out)
+    assert assembled["samples"] == one_shot["samples"]
+    assert [s["sha256"] for s in assembled["shards"]] == [s["sha256"] for s in one_shot["shards"]]
+
+    (out / "manifest.json").unlink()
+    result = cli.run("merge", out)
+    assert result.exit_code == 0, result.stderr
+    assert "manifest of 40 samples in 5 shards" in result.stderr
+    assert cli.manifest(out) == assembled
+    assert cli.run("verify", out, "-q").exit_code == 0
+
+
+def test_merge_of_a_directory_without_a_plan(cli, tmp_path):
+    cli.assert_one_line_error(cli.run("merge", tmp_path), tmp_path / "dataset.json")
+
+
+# --- full disk --------------------------------------------------------------------------------------
+
+
+def _enospc(*_args, **_kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def _fail_at_open(monkeypatch):
+    real = h5py.File
+
+    def file(name, mode="r", *args, **kwargs):
+        if mode == "w":
+            _enospc()
+        return real(name, mode, *args, **kwargs)
+
+    monkeypatch.setattr(shards.h5py, "File", file)
+
+
+def _fail_mid_write(monkeypatch):
+    real, calls = shards.encode_flow_exr, []
+
+    def encode(*args, **kwargs):  # the second sample of the shard: the .tmp file is half written
+        calls.append(1)
+        if len(calls) == 2:
+            _enospc()
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(shards, "encode_flow_exr", encode)
+
+
+def _fail_at_rename(monkeypatch):
+    real = os.replace
+
+    def replace(src, dst, *args, **kwargs):  # the .tmp file is complete and fsynced
+        if str(src).endswith(".h5.tmp"):
+            assert Path(src).stat().st_size > 0
+            _enospc()
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(shards.os, "replace", replace)
+
+
+@pytest.mark.parametrize("inject", [_fail_at_open, _fail_mid_write, _fail_at_rename])
+def test_full_disk_leaves_no_shard_and_resumes(inject, monkeypatch, tmp_path):
+    plan = resolve_plan(size=parse_size("48x64"), seed=0, split="train", pairs=1, transforms="0-3",
+                        blend="paper")  # fmt: skip
+    out = tmp_path / "ds"
+    with monkeypatch.context() as m:
+        inject(m)
+        with pytest.raises(ProjsynthError) as info:
+            generate(plan, out, shard_size=2, workers=1)
+    message = str(info.value)
+    assert "no space left" in message and "shard-00000.h5" in message and "\n" not in message
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json"]  # no shard, no .tmp
+
+    result = generate(plan, out, shard_size=2, workers=1)  # space freed: the same call resumes
+    assert (result.written, result.skipped, result.num_shards) == ([0, 1, 2, 3], [], 4)
+    assert result.manifest is not None and result.manifest["num_samples"] == 8
+    assert all(shard_is_complete(out / shards.shard_name(j), result.manifest["config_hash"]) for j in range(4))
+    assert verify(out) == []
+
+
+# --- image folders ----------------------------------------------------------------------------------
+
+
+def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
+    rng = np.random.default_rng(0)
+    for kind in ("nat", "gen"):
+        (tmp_path / kind).mkdir()
+        for i in range(12):
+            cv2.imwrite(str(tmp_path / kind / f"{kind}{i}.png"), rng.integers(0, 256, (60, 80, 3), np.uint8))
+    opts = ["--natural", tmp_path / "nat", "--generated", tmp_path / "gen", "--pairs", "1", "--size", "48x64",
+            "--transforms", "0-1", "-q"]  # fmt: skip
+    for name in ("a", "b"):
+        result = cli.run("gen", "--out", tmp_path / name, *opts, "--shard-size", "3" if name == "a" else "4")
+        assert result.exit_code == 0, (result.stderr, result.exception)
+    a, b = cli.manifest(tmp_path / "a"), cli.manifest(tmp_path / "b")
+    assert a["num_samples"] == 4 and a["samples"] == b["samples"]
+    names = a["sources"]
+    assert len(names["natural"]) == len(names["generated"]) == 1
+    assert names["natural"][0].startswith("nat") and names["generated"][0].startswith("gen")
+    assert cli.run("verify", tmp_path / "a", "-q").exit_code == 0
+    reader = ShardReader(tmp_path / "a")
+    try:  # role 0 projects the natural image, role 1 the generated one, each fitted to 48x64
+        r0, r1 = reader.read(0), reader.read(2)
+        assert r0["params"]["sources"]["projected"] == names["natural"][0]
+        assert r1["params"]["sources"]["projected"] == names["generated"][0]
+        assert r0["projected"].shape == (48, 64, 3) and not np.array_equal(r0["projected"], r1["projected"])
+    finally:
+        reader.close()
