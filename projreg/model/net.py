@@ -1,0 +1,185 @@
+"""SSJMFlow: the registration network, and its named configurations.
+
+backbone (1/8, optionally 1/4) -> SSJM -> feature transformer -> global correlation softmax (1/8)
+-> flow propagation -> [refinement at 1/4: warp, local correlation softmax, local propagation]
+-> convex upsampling to full resolution.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .. import ProjregError
+from .backbone import CNNEncoder
+from .matching import (
+    ConvexUpsampler,
+    bilinear_upsample_flow,
+    flow_warp,
+    global_correlation_softmax,
+    local_correlation_softmax,
+)
+from .propagation import FlowPropagation
+from .ssjm import SSJM
+from .transformer import FeatureTransformer
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+MODEL_CONFIGS: dict[str, dict[str, Any]] = {
+    # trains on a 2-core CPU; ships in the repository
+    "small": {
+        "feature_channels": 96,
+        "backbone_channels": [32, 64, 96],
+        "num_transformer_layers": 3,
+        "ffn_dim_expansion": 2,
+        "attn_splits": 2,
+        "refine": True,
+        "refine_radius": 4,
+        "upsampler_channels": 64,
+    },
+    # GMFlow-sized (one scale, about 4.7 M parameters)
+    "base": {
+        "feature_channels": 128,
+        "backbone_channels": [64, 96, 128],
+        "num_transformer_layers": 6,
+        "ffn_dim_expansion": 4,
+        "attn_splits": 2,
+        "refine": False,
+        "refine_radius": 4,
+        "upsampler_channels": 256,
+    },
+}
+
+
+class SSJMFlow(nn.Module):
+    """Global-matching optical flow with Saliency-Statistics Joint Modulation of the features.
+
+    Args:
+        feature_channels: channels C of the matching features (multiple of 4).
+        backbone_channels: channels of the encoder's three stages (1/2, 1/4, 1/8).
+        num_transformer_layers: (self, cross) attention layer pairs.
+        ffn_dim_expansion: FFN expansion of the cross-attention layers.
+        attn_splits: attention windows per side at 1/8.
+        use_ssjm: apply SSJM to the features (False: the paper's ablation).
+        ssjm_lambda: SSJM's lambda.
+        refine: refine at 1/4 with local correlation (radius ``refine_radius``) and local propagation.
+        refine_radius: local-correlation radius at 1/4, in 1/4-resolution pixels.
+        upsampler_channels: hidden width of the convex upsampler.
+
+    ``model.config`` holds these arguments, so ``SSJMFlow(**model.config)`` rebuilds the model.
+
+    Convention: ``forward(img0, img1)`` with img0 the projected and img1 the captured image, both
+    ``[B, 3, H, W]`` float RGB in [0, 255], any ``H x W``; returns the sequence of flow predictions,
+    coarse to fine, each ``[B, 2, H, W]`` forward projected -> captured in pixels (channel 0 = u to
+    the right, 1 = v down). The last one is the answer.
+    """
+
+    def __init__(
+        self,
+        *,
+        feature_channels: int = 128,
+        backbone_channels: Sequence[int] = (64, 96, 128),
+        num_transformer_layers: int = 6,
+        ffn_dim_expansion: int = 4,
+        attn_splits: int = 2,
+        use_ssjm: bool = True,
+        ssjm_lambda: float = 1e-4,
+        refine: bool = False,
+        refine_radius: int = 4,
+        upsampler_channels: int = 256,
+    ) -> None:
+        super().__init__()
+        if feature_channels < 4 or feature_channels % 4:
+            raise ProjregError(f"feature_channels must be a positive multiple of 4, got {feature_channels}")
+        if attn_splits < 1 or num_transformer_layers < 0 or ffn_dim_expansion < 1 or refine_radius < 1:
+            raise ProjregError(
+                "need attn_splits >= 1, num_transformer_layers >= 0, ffn_dim_expansion >= 1, refine_radius >= 1"
+            )
+        self.config: dict[str, Any] = {
+            "feature_channels": int(feature_channels),
+            "backbone_channels": [int(c) for c in backbone_channels],
+            "num_transformer_layers": int(num_transformer_layers),
+            "ffn_dim_expansion": int(ffn_dim_expansion),
+            "attn_splits": int(attn_splits),
+            "use_ssjm": bool(use_ssjm),
+            "ssjm_lambda": float(ssjm_lambda),
+            "refine": bool(refine),
+            "refine_radius": int(refine_radius),
+            "upsampler_channels": int(upsampler_channels),
+        }
+        c = feature_channels
+        self.attn_splits = attn_splits
+        self.refine = refine
+        self.refine_radius = refine_radius
+        # the 1/8 map must split into attn_splits windows per side
+        self.pad_multiple = 8 * attn_splits
+        self.register_buffer("mean", 255.0 * torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", 255.0 * torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+
+        self.backbone = CNNEncoder(backbone_channels, c, with_quarter=refine)
+        self.ssjm8 = SSJM(ssjm_lambda) if use_ssjm else None
+        self.ssjm4 = SSJM(ssjm_lambda) if use_ssjm and refine else None
+        self.transformer = FeatureTransformer(c, num_transformer_layers, ffn_dim_expansion, attn_splits)
+        self.propagate8 = FlowPropagation(c, radius=None)
+        self.propagate4 = FlowPropagation(c, radius=1) if refine else None
+        self.upsampler = ConvexUpsampler(c, upsampler_channels, factor=4 if refine else 8)
+
+    def forward(self, img0: torch.Tensor, img1: torch.Tensor) -> list[torch.Tensor]:
+        if img0.dim() != 4 or img0.shape[1] != 3 or img0.shape != img1.shape:
+            raise ProjregError(
+                f"expected two [B, 3, H, W] images of one shape, got {tuple(img0.shape)} and {tuple(img1.shape)}"
+            )
+        b, _, h, w = img0.shape
+        m = self.pad_multiple
+        pad = (0, (-w) % m, 0, (-h) % m)
+        x = torch.cat([img0, img1], dim=0).float()  # [2B, 3, H, W]
+        x = F.pad((x - self.mean) / self.std, pad, mode="replicate")  # [2B, 3, H', W']
+
+        f8, f4 = self.backbone(x)  # [2B, C, H'/8, W'/8], [2B, C, H'/4, W'/4] or None
+        if self.ssjm8 is not None:
+            f8 = self.ssjm8(f8)
+        if self.ssjm4 is not None:
+            f4 = self.ssjm4(f4)
+        f0, f1 = self.transformer(f8[:b], f8[b:])  # [B, C, H'/8, W'/8] each
+
+        flow, _ = global_correlation_softmax(f0, f1)  # [B, 2, H'/8, W'/8]
+        preds = [bilinear_upsample_flow(flow, 8)]
+        flow = self.propagate8(f0, flow)  # [B, 2, H'/8, W'/8]
+        if not self.refine:
+            preds.append(self.upsampler(flow, f0))
+        else:
+            preds.append(bilinear_upsample_flow(flow, 8))
+            f0q, f1q = f4[:b], f4[b:]  # [B, C, H'/4, W'/4]
+            # the refinement learns a residual on top of a fixed coarse flow (as RAFT / GMFlow)
+            flow = bilinear_upsample_flow(flow.detach(), 2)  # [B, 2, H'/4, W'/4]
+            residual, _ = local_correlation_softmax(f0q, flow_warp(f1q, flow), self.refine_radius)
+            flow = flow + residual  # [B, 2, H'/4, W'/4]
+            preds.append(bilinear_upsample_flow(flow, 4))
+            flow = self.propagate4(f0q, flow)  # [B, 2, H'/4, W'/4]
+            preds.append(self.upsampler(flow, f0q))
+        return [p[:, :, :h, :w] for p in preds]
+
+
+def build_model(name: str, use_ssjm: bool = True) -> SSJMFlow:
+    """Build a named configuration from :data:`MODEL_CONFIGS` (``"small"`` or ``"base"``).
+
+    Args:
+        name: configuration name.
+        use_ssjm: False builds the paper's "without SSJM" ablation.
+
+    Returns:
+        A freshly initialised :class:`SSJMFlow`.
+    """
+    if name not in MODEL_CONFIGS:
+        raise ProjregError(f"unknown model {name!r}; choose from {', '.join(sorted(MODEL_CONFIGS))}")
+    return SSJMFlow(**MODEL_CONFIGS[name], use_ssjm=use_ssjm)
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of scalar parameters of ``model`` (trainable or not)."""
+    return sum(p.numel() for p in model.parameters())

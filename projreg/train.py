@@ -1,0 +1,279 @@
+"""``projreg train``: AdamW + OneCycle, gamma-weighted sequence L1 on valid pixels, exact resume.
+
+Run directory::
+
+    RUN/config.json            resolved config, versions, command line
+    RUN/metrics.csv            one row per logged step (kind=train) and per validation (kind=val)
+    RUN/checkpoints/last.pt    model, optimizer, scheduler, RNG states, step (atomic)
+    RUN/checkpoints/best.pt    the model with the lowest validation EPE
+
+Multi-GPU / multi-node: launch with ``torchrun``; each rank reads its own slice of the sample stream
+and only rank 0 writes. Checkpoints contain only tensors and plain containers
+(``torch.load(..., weights_only=True)``).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+import random
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader
+
+from . import ProjregError, __version__
+from .data import Augment, ShardDataset, StreamSampler
+from .evaluate import evaluate
+from .loss import sequence_loss
+from .model.net import SSJMFlow, build_model, count_parameters
+
+CSV_FIELDS = ("step", "kind", "loss", "epe", "s0-10", "s10-40", "s40+", "px1", "px3", "px5", "lr", "samples_per_s")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    data: list[str]
+    out: str
+    val: list[str] = field(default_factory=list)
+    model: str = "small"
+    use_ssjm: bool = True
+    steps: int = 15000
+    batch_size: int = 8
+    lr: float = 4e-4
+    weight_decay: float = 1e-4
+    grad_clip: float = 1.0
+    gamma: float = 0.9
+    seed: int = 0
+    workers: int = 2
+    crop: tuple[int, int] | None = (256, 320)
+    log_every: int = 10
+    val_every: int = 500
+    val_samples: int = 64
+    ckpt_every: int = 100
+    amp: bool = False  # bf16 autocast, CUDA only
+    compile: bool = False
+
+    def validate(self) -> None:
+        checks = [(self.steps >= 1, "--steps must be >= 1"), (self.batch_size >= 1, "--batch-size must be >= 1"),
+                  (self.lr > 0, "--lr must be > 0"), (self.workers >= 0, "--workers must be >= 0"),
+                  (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
+                  (0 < self.gamma <= 1, "--gamma must be in (0, 1]")]  # fmt: skip
+        for ok, msg in checks:
+            if not ok:
+                raise ProjregError(msg)
+
+
+def _atomic_save(obj: dict, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path) -> dict:
+    """Load a checkpoint safely (``weights_only=True``); errors name the file."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise ProjregError(f"{path}: no such checkpoint") from None
+    except Exception as e:  # torch raises many types for corrupt files
+        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") from e
+
+
+def model_from_checkpoint(ckpt: dict) -> SSJMFlow:
+    model = SSJMFlow(**ckpt["model_config"])
+    model.load_state_dict(ckpt["model"])
+    return model
+
+
+def _rng_state() -> dict:
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state()[1].tolist(), "python": random.getstate()[1]}
+
+
+def _set_rng_state(s: dict) -> None:
+    torch.set_rng_state(s["torch"])
+    st = np.random.get_state()
+    np.random.set_state((st[0], np.array(s["numpy"], dtype=np.uint32), *st[2:]))
+    random.setstate((3, tuple(s["python"]), None))
+
+
+class _Log:
+    """metrics.csv, truncated to ``step`` on resume so the log matches the checkpoint."""
+
+    def __init__(self, path: Path, resume_step: int | None, enabled: bool):
+        self.path, self.enabled = path, enabled
+        if not enabled:
+            return
+        rows = []
+        if resume_step is not None and path.exists():
+            with open(path, newline="") as f:
+                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= resume_step]
+        with open(path, "w", newline="") as f:
+            w = csv.DictWriter(f, CSV_FIELDS)
+            w.writeheader()
+            w.writerows(rows)
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.tb = SummaryWriter(str(path.parent / "tensorboard"))
+        except ImportError:
+            self.tb = None
+
+    def write(self, row: dict) -> None:
+        if not self.enabled:
+            return
+        with open(self.path, "a", newline="") as f:
+            csv.DictWriter(f, CSV_FIELDS).writerow({k: row.get(k, "") for k in CSV_FIELDS})
+        if self.tb is not None:
+            for k, v in row.items():
+                if isinstance(v, float) and math.isfinite(v):
+                    self.tb.add_scalar(f"{row['kind']}/{k}", v, row["step"])
+
+
+def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None) -> dict:
+    """Train ``cfg.model`` on ``cfg.data``; returns a summary (final step, last loss, best EPE)."""
+    cfg.validate()
+    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    cuda = torch.cuda.is_available()
+    device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0))) if cuda else torch.device("cpu")
+    if distributed:
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    rank, world = (dist.get_rank(), dist.get_world_size()) if distributed else (0, 1)
+    out = Path(cfg.out)
+    ckpt_dir = out / "checkpoints"
+    last_path = ckpt_dir / "last.pt"
+    if rank == 0:
+        try:
+            ckpt_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ProjregError(f"--out {out}: cannot create ({e.strerror})") from e
+        if not resume and last_path.exists():
+            raise ProjregError(f"--out {out}: already holds a run; add --resume to continue it or pick a new --out")
+    if resume and not last_path.exists():
+        raise ProjregError(f"--resume: {last_path} does not exist; start without --resume")
+
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    random.seed(cfg.seed)
+    model = build_model(cfg.model, use_ssjm=cfg.use_ssjm).to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = _schedule(opt, cfg)
+    step, best = 0, float("inf")
+    if resume:
+        ck = load_checkpoint(last_path)
+        if ck["train_config"]["model"] != cfg.model or ck["model_config"]["use_ssjm"] != cfg.use_ssjm:
+            raise ProjregError(f"--resume: {last_path} is a {ck['train_config']['model']} run; use the same --model")
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        if ck["train_config"]["steps"] == cfg.steps:
+            sched.load_state_dict(ck["scheduler"])
+        else:  # a longer (or shorter) run: the rest of the schedule follows the new --steps
+            sched = _schedule(opt, cfg, start=int(ck["step"]))
+        _set_rng_state(ck["rng"])
+        step, best = int(ck["step"]), float(ck["best_epe"])
+    if rank == 0:
+        _write_config(out, cfg, model, resume)
+    log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
+
+    train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
+    val_ds = ShardDataset([Path(p) for p in cfg.val]) if cfg.val else None
+    sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
+    loader = DataLoader(train_ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.workers,
+                        pin_memory=device.type == "cuda", drop_last=True)  # fmt: skip
+    net = torch.nn.parallel.DistributedDataParallel(model) if distributed else model
+    if cfg.compile:
+        net = torch.compile(net)
+    autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=cfg.amp and device.type == "cuda")
+
+    def checkpoint(path: Path) -> None:
+        _atomic_save({"model": model.state_dict(), "model_config": model.config, "optimizer": opt.state_dict(),
+                      "scheduler": sched.state_dict(), "rng": _rng_state(), "step": step, "best_epe": best,
+                      "train_config": asdict(cfg), "version": __version__}, path)  # fmt: skip
+
+    t0, seen, last_loss = time.perf_counter(), 0, float("nan")
+    batches = iter(loader)
+    model.train()
+    while step < cfg.steps:
+        batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
+        with autocast:
+            preds = net(batch["img0"], batch["img1"])
+        loss, stats = sequence_loss([p.float() for p in preds], batch["flow"], batch["valid"], gamma=cfg.gamma)
+        if not torch.isfinite(loss):
+            raise ProjregError(f"non-finite loss at step {step + 1}; stopped, the last good checkpoint is {last_path}")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+        opt.step()
+        sched.step()
+        step += 1
+        seen += cfg.batch_size * world
+        last_loss = float(loss.detach())
+        if step % cfg.log_every == 0 or step == cfg.steps:
+            rate = seen / (time.perf_counter() - t0)
+            log.write({"step": step, "kind": "train", "loss": last_loss, "epe": stats["epe"],
+                       "px1": stats["px1"], "px3": stats["px3"], "px5": stats["px5"],
+                       "lr": sched.get_last_lr()[0], "samples_per_s": rate})  # fmt: skip
+        if val_ds is not None and rank == 0 and (step % cfg.val_every == 0 or step == cfg.steps):
+            res = evaluate(model, val_ds, device=device, limit=cfg.val_samples)
+            model.train()
+            log.write({"step": step, "kind": "val", **{k: res[k] for k in CSV_FIELDS if k in res}})
+            if res["epe"] is not None and res["epe"] < best:
+                best = res["epe"]
+                checkpoint(ckpt_dir / "best.pt")
+        if rank == 0 and (step % cfg.ckpt_every == 0 or step == cfg.steps):
+            checkpoint(last_path)
+        if progress:
+            progress(step, last_loss)
+    summary = {"step": step, "loss": last_loss, "best_epe": None if math.isinf(best) else best}
+    if distributed:
+        _record_ddp_agreement(model, out, rank, world)
+        dist.destroy_process_group()
+    return summary
+
+
+def _schedule(opt: torch.optim.Optimizer, cfg: TrainConfig, start: int = 0) -> torch.optim.lr_scheduler.LRScheduler:
+    """OneCycle over ``cfg.steps`` (5% linear warm-up, then linear decay), advanced to ``start``."""
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.steps + 1, pct_start=0.05,
+                                                cycle_momentum=False, anneal_strategy="linear")  # fmt: skip
+    lrs = [g["lr"] for g in opt.param_groups]
+    with warnings.catch_warnings():  # get_lr() outside step() warns; we only read the closed form
+        warnings.simplefilter("ignore")
+        for _ in range(start):
+            sched.last_epoch += 1
+            lrs = sched.get_lr()
+    for g, lr in zip(opt.param_groups, lrs, strict=True):
+        g["lr"] = lr
+    sched._last_lr = lrs
+    return sched
+
+
+def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) -> None:
+    info = {"train_config": asdict(cfg), "model_config": model.config, "parameters": count_parameters(model),
+            "versions": {"projreg": __version__, "torch": torch.__version__, "numpy": np.__version__,
+                         "python": platform.python_version()},
+            "command": sys.argv, "resumed": resume}  # fmt: skip
+    path = out / "config.json"
+    if resume and path.exists():  # keep the original, record the resume
+        info = json.loads(path.read_text()) | {"resumed_with": sys.argv}
+    path.write_text(json.dumps(info, indent=1) + "\n")
+
+
+def _record_ddp_agreement(model: torch.nn.Module, out: Path, rank: int, world: int) -> None:
+    """Every rank's parameter checksum, gathered to rank 0 (``ddp_params.json``): DDP keeps them equal."""
+    total = torch.tensor([float(sum(p.detach().double().sum() for p in model.parameters()))], dtype=torch.float64)
+    gathered = [torch.zeros_like(total) for _ in range(world)]
+    dist.all_gather(gathered, total)
+    if rank == 0:
+        (out / "ddp_params.json").write_text(json.dumps([float(g) for g in gathered]))

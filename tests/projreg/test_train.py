@@ -1,0 +1,97 @@
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from projreg import ProjregError
+from projreg.train import TrainConfig, load_checkpoint, train
+
+
+def _cfg(data, out, **kw):
+    base = {"data": [str(data)], "out": str(out), "model": "small", "steps": 60, "batch_size": 2, "seed": 3,
+            "workers": 0, "crop": None, "log_every": 1, "ckpt_every": 10, "val_every": 1000}
+    return TrainConfig(**(base | kw))
+
+
+def _losses(run):
+    with open(run / "metrics.csv", newline="") as f:
+        return {int(r["step"]): float(r["loss"]) for r in csv.DictReader(f) if r["kind"] == "train"}
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_resume_continues_exactly_and_loss_falls(tiny_train, tmp_path):
+    full = tmp_path / "full"
+    train(_cfg(tiny_train, full))
+
+    part = tmp_path / "part"
+
+    def interrupt(step, loss):
+        if step == 30:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        train(_cfg(tiny_train, part), progress=interrupt)
+    train(_cfg(tiny_train, part), resume=True)
+    a, b = _losses(full), _losses(part)
+    assert sorted(b) == list(range(1, 61))
+    for s in range(31, 61):
+        assert abs(a[s] - b[s]) < 1e-4, (s, a[s], b[s])
+    first, last = sum(a[s] for s in range(1, 11)) / 10, sum(a[s] for s in range(51, 61)) / 10
+    assert last < 0.6 * first
+    ck = torch.load(full / "checkpoints" / "last.pt", weights_only=True)
+    assert ck["step"] == 60 and set(ck) >= {"model", "optimizer", "scheduler", "rng", "model_config"}
+
+
+def test_no_ssjm_trains_and_records_ablation(tiny_train, tmp_path):
+    summary = train(_cfg(tiny_train, tmp_path / "r", steps=4, use_ssjm=False))
+    assert summary["step"] == 4
+    assert load_checkpoint(tmp_path / "r" / "checkpoints" / "last.pt")["model_config"]["use_ssjm"] is False
+
+
+def test_validation_rows_and_best_checkpoint(tiny_train, tiny_val, tmp_path):
+    train(_cfg(tiny_train, tmp_path / "r", steps=4, val=[str(tiny_val)], val_every=2))
+    with open(tmp_path / "r" / "metrics.csv", newline="") as f:
+        val = [r for r in csv.DictReader(f) if r["kind"] == "val"]
+    assert [int(r["step"]) for r in val] == [2, 4]
+    assert all(float(r["epe"]) > 0 for r in val)
+    assert (tmp_path / "r" / "checkpoints" / "best.pt").exists()
+
+
+def test_refuses_existing_run_without_resume_and_resume_without_run(tiny_train, tmp_path):
+    train(_cfg(tiny_train, tmp_path / "r", steps=2))
+    with pytest.raises(ProjregError, match="--resume"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=2))
+    with pytest.raises(ProjregError, match="--resume"):
+        train(_cfg(tiny_train, tmp_path / "new", steps=2), resume=True)
+
+
+def test_missing_dataset_is_one_clear_error(tmp_path):
+    with pytest.raises(ProjregError, match="nowhere"):
+        train(_cfg(tmp_path / "nowhere", tmp_path / "r", steps=2))
+
+
+def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
+    args = [sys.executable, "-m", "projreg.cli", "train", "--data", str(tiny_train), "--steps", "40",
+            "--batch-size", "2", "--seed", "3", "--workers", "0", "--crop", "none", "--ckpt-every", "5", "--quiet"]
+    ref = tmp_path / "ref"
+    subprocess.run(args + ["--out", str(ref)], check=True)
+    run = tmp_path / "run"
+    proc = subprocess.Popen(args + ["--out", str(run)])
+    deadline = time.time() + 120
+    while time.time() < deadline and not (run / "checkpoints" / "last.pt").exists():
+        time.sleep(0.05)
+    time.sleep(0.3)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    subprocess.run(args + ["--out", str(run), "--resume"], check=True)
+    a = torch.load(ref / "checkpoints" / "last.pt", weights_only=True)["model"]
+    b = torch.load(run / "checkpoints" / "last.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
