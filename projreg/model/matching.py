@@ -63,6 +63,13 @@ def window_offsets(radius: int, device=None, dtype=None) -> torch.Tensor:
     return torch.stack([dx.flatten(), dy.flatten()], dim=1)
 
 
+def _window_slices(r: int, h: int, w: int):
+    """Slices of an r-padded map that shift it by each window offset, in :func:`window_offsets` order."""
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            yield slice(r + dy, r + dy + h), slice(r + dx, r + dx + w)
+
+
 class _WindowDot(torch.autograd.Function):
     """``out[:, k] = sum_c f0 * shift_k(f1)`` for the window offsets k, with a hand-written backward.
 
@@ -101,13 +108,6 @@ class _WindowDot(torch.autograd.Function):
         return grad_f0, grad_f1, None
 
 
-def _window_slices(r: int, h: int, w: int):
-    """Slices of an r-padded map that shift it by each window offset, in :func:`window_offsets` order."""
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            yield slice(r + dy, r + dy + h), slice(r + dx, r + dx + w)
-
-
 def local_window_scores(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> torch.Tensor:
     """Scaled dot products of each img0 pixel with the img1 pixels in its ``(2r+1)^2`` window.
 
@@ -123,7 +123,8 @@ def local_window_scores(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> torc
     r = radius
     inside = F.pad(torch.ones(h, w, device=f0.device, dtype=torch.bool), (r, r, r, r))  # [H+2r, W+2r]
     outside = ~torch.stack([inside[ys, xs] for ys, xs in _window_slices(r, h, w)], dim=0)  # [K, H, W]
-    scores = _WindowDot.apply(f0.contiguous() / math.sqrt(c), f1.contiguous(), r)  # [B, K, H, W]
+    dtype = torch.promote_types(f0.dtype, f1.dtype)
+    scores = _WindowDot.apply(f0.to(dtype) / math.sqrt(c), f1.to(dtype).contiguous(), r)  # [B, K, H, W]
     return scores.masked_fill(outside, float("-inf"))
 
 

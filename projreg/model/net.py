@@ -136,9 +136,8 @@ class SSJMFlow(nn.Module):
             )
         b, _, h, w = img0.shape
         m = self.pad_multiple
-        pad = (0, (-w) % m, 0, (-h) % m)
-        x = torch.cat([img0, img1], dim=0).float()  # [2B, 3, H, W]
-        x = F.pad((x - self.mean) / self.std, pad, mode="replicate")  # [2B, 3, H', W']
+        x = torch.cat([img0, img1], dim=0).to(self.mean.dtype)  # [2B, 3, H, W]
+        x = F.pad((x - self.mean) / self.std, (0, (-w) % m, 0, (-h) % m), mode="replicate")  # [2B, 3, H', W']
 
         f8, f4 = self.backbone(x)  # [2B, C, H'/8, W'/8], [2B, C, H'/4, W'/4] or None
         if self.ssjm8 is not None:
@@ -147,22 +146,37 @@ class SSJMFlow(nn.Module):
             f4 = self.ssjm4(f4)
         f0, f1 = self.transformer(f8[:b], f8[b:])  # [B, C, H'/8, W'/8] each
 
-        flow, _ = global_correlation_softmax(f0, f1)  # [B, 2, H'/8, W'/8]
-        preds = [bilinear_upsample_flow(flow, 8)]
-        flow = self.propagate8(f0, flow)  # [B, 2, H'/8, W'/8]
-        if not self.refine:
-            preds.append(self.upsampler(flow, f0))
-        else:
-            preds.append(bilinear_upsample_flow(flow, 8))
-            f0q, f1q = f4[:b], f4[b:]  # [B, C, H'/4, W'/4]
-            # the refinement learns a residual on top of a fixed coarse flow (as RAFT / GMFlow)
-            flow = bilinear_upsample_flow(flow.detach(), 2)  # [B, 2, H'/4, W'/4]
-            residual, _ = local_correlation_softmax(f0q, flow_warp(f1q, flow), self.refine_radius)
-            flow = flow + residual  # [B, 2, H'/4, W'/4]
-            preds.append(bilinear_upsample_flow(flow, 4))
-            flow = self.propagate4(f0q, flow)  # [B, 2, H'/4, W'/4]
-            preds.append(self.upsampler(flow, f0q))
+        # flow arithmetic in float32 even under autocast: half precision cannot hold sub-pixel
+        # coordinates (its step is 1/16 px at 64 px)
+        with torch.autocast(device_type=x.device.type, enabled=False):
+            f0, f1 = _at_least_float32(f0), _at_least_float32(f1)
+            flow, _ = global_correlation_softmax(f0, f1)  # [B, 2, H'/8, W'/8]
+            preds = [bilinear_upsample_flow(flow, 8)]
+            flow = self.propagate8(f0, flow)  # [B, 2, H'/8, W'/8]
+            if self.refine:
+                preds.append(bilinear_upsample_flow(flow, 8))
+                preds += self._refine4(_at_least_float32(f4[:b]), _at_least_float32(f4[b:]), flow)
+            else:
+                preds.append(self.upsampler(flow, f0))
         return [p[:, :, :h, :w] for p in preds]
+
+    def _refine4(self, f0: torch.Tensor, f1: torch.Tensor, flow8: torch.Tensor) -> list[torch.Tensor]:
+        """Refinement at 1/4 of the propagated 1/8 flow: ``[local match, propagated]`` at full resolution.
+
+        f0, f1 are the 1/4 features ``[B, C, H'/4, W'/4]``, flow8 ``[B, 2, H'/8, W'/8]``.
+        """
+        # the refinement learns a residual on top of a fixed coarse flow (as RAFT / GMFlow)
+        flow = bilinear_upsample_flow(flow8.detach(), 2)  # [B, 2, H'/4, W'/4]
+        residual, _ = local_correlation_softmax(f0, flow_warp(f1, flow), self.refine_radius)
+        flow = flow + residual  # [B, 2, H'/4, W'/4]
+        preds = [bilinear_upsample_flow(flow, 4)]
+        flow = self.propagate4(f0, flow)  # [B, 2, H'/4, W'/4]
+        preds.append(self.upsampler(flow, f0))
+        return preds
+
+
+def _at_least_float32(x: torch.Tensor) -> torch.Tensor:
+    return x.to(torch.promote_types(x.dtype, torch.float32))
 
 
 def build_model(name: str, use_ssjm: bool = True) -> SSJMFlow:

@@ -178,6 +178,13 @@ def test_padding_is_replicate_at_bottom_right_and_cropped_back():
         torch.testing.assert_close(p, q[:, :, :40, :56])
 
 
+def test_autocast_keeps_flow_in_float32():
+    model = build_model("small").eval()
+    with torch.no_grad(), torch.autocast(device_type="cpu", dtype=torch.bfloat16):
+        preds = model(*_images(1, 32, 48))
+    assert all(p.dtype == torch.float32 and torch.isfinite(p).all() for p in preds)
+
+
 def test_rejects_bad_inputs_and_names():
     model = build_model("small")
     with pytest.raises(ProjregError):

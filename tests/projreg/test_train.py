@@ -95,3 +95,15 @@ def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
     a = torch.load(ref / "checkpoints" / "last.pt", weights_only=True)["model"]
     b = torch.load(run / "checkpoints" / "last.pt", weights_only=True)["model"]
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
+    run = tmp_path / "ddp"
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m",
+                "projreg.cli"]
+    env = os.environ | {"OMP_NUM_THREADS": "1"}
+    subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3", "--batch-size",
+                               "1", "--workers", "0", "--crop", "none", "--quiet"], check=True, env=env, timeout=300)
+    sums = __import__("json").loads((run / "ddp_params.json").read_text())
+    assert len(sums) == 2 and sums[0] == sums[1]
+    assert torch.load(run / "checkpoints" / "last.pt", weights_only=True)["step"] == 3
