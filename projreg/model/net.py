@@ -65,7 +65,7 @@ class SSJMFlow(nn.Module):
         num_transformer_layers: (self, cross) attention layer pairs.
         ffn_dim_expansion: FFN expansion of the cross-attention layers.
         attn_splits: attention windows per side at 1/8.
-        use_ssjm: apply SSJM to the features (False: the paper's ablation).
+        use_ssjm: apply SSJM to the 1/8 features of both images (False: the paper's ablation).
         ssjm_lambda: SSJM's lambda.
         refine: refine at 1/4 with local correlation (radius ``refine_radius``) and local propagation.
         refine_radius: local-correlation radius at 1/4, in 1/4-resolution pixels.
@@ -74,9 +74,12 @@ class SSJMFlow(nn.Module):
     ``model.config`` holds these arguments, so ``SSJMFlow(**model.config)`` rebuilds the model.
 
     Convention: ``forward(img0, img1)`` with img0 the projected and img1 the captured image, both
-    ``[B, 3, H, W]`` float RGB in [0, 255], any ``H x W``; returns the sequence of flow predictions,
-    coarse to fine, each ``[B, 2, H, W]`` forward projected -> captured in pixels (channel 0 = u to
-    the right, 1 = v down). The last one is the answer.
+    ``[B, 3, H, W]`` float RGB in [0, 255], any ``H x W`` (replicate-padded at the bottom and right
+    to a multiple of ``8 * attn_splits``, outputs cropped back); returns the flow predictions, each
+    ``[B, 2, H, W]`` forward projected -> captured in pixels (channel 0 = u to the right, 1 = v down):
+    ``[global match, propagated]`` (1/8, bilinear / convex upsampled), and with ``refine``
+    ``[global match, propagated, local match at 1/4, propagated at 1/4 (convex)]``. The last one is
+    the answer.
     """
 
     def __init__(
@@ -113,7 +116,6 @@ class SSJMFlow(nn.Module):
             "upsampler_channels": int(upsampler_channels),
         }
         c = feature_channels
-        self.attn_splits = attn_splits
         self.refine = refine
         self.refine_radius = refine_radius
         # the 1/8 map must split into attn_splits windows per side
@@ -122,8 +124,7 @@ class SSJMFlow(nn.Module):
         self.register_buffer("std", 255.0 * torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
         self.backbone = CNNEncoder(backbone_channels, c, with_quarter=refine)
-        self.ssjm8 = SSJM(ssjm_lambda) if use_ssjm else None
-        self.ssjm4 = SSJM(ssjm_lambda) if use_ssjm and refine else None
+        self.ssjm = SSJM(ssjm_lambda) if use_ssjm else None
         self.transformer = FeatureTransformer(c, num_transformer_layers, ffn_dim_expansion, attn_splits)
         self.propagate8 = FlowPropagation(c, radius=None)
         self.propagate4 = FlowPropagation(c, radius=1) if refine else None
@@ -140,10 +141,8 @@ class SSJMFlow(nn.Module):
         x = F.pad((x - self.mean) / self.std, (0, (-w) % m, 0, (-h) % m), mode="replicate")  # [2B, 3, H', W']
 
         f8, f4 = self.backbone(x)  # [2B, C, H'/8, W'/8], [2B, C, H'/4, W'/4] or None
-        if self.ssjm8 is not None:
-            f8 = self.ssjm8(f8)
-        if self.ssjm4 is not None:
-            f4 = self.ssjm4(f4)
+        if self.ssjm is not None:
+            f8 = self.ssjm(f8)  # both images in one batch: shared weights, per-image statistics
         f0, f1 = self.transformer(f8[:b], f8[b:])  # [B, C, H'/8, W'/8] each
 
         # flow arithmetic in float32 even under autocast: half precision cannot hold sub-pixel

@@ -1,0 +1,86 @@
+"""Training and inference speed of the registration net on this machine, with the loader beside it.
+
+Usage: python bench/bench_train.py [--model small] [--batch 8] [--size 384x512] [--steps 3]
+
+Prints, from one run: DataLoader samples/s (full frames, augmentation on), training samples/s
+(forward + backward + AdamW step), inference ms per pair (batch 1, eval), and the peak RSS of a
+process that ran the training steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import resource
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.data import DataLoader
+
+from projreg.data import Augment, ShardDataset, StreamSampler
+from projreg.loss import sequence_loss
+from projreg.model.net import build_model, count_parameters
+from projsynth.dataset import parse_size, resolve_plan
+from projsynth.generate import generate
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default="small")
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--size", default="384x512")
+    ap.add_argument("--steps", type=int, default=3)
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    h, w = parse_size(args.size)
+    torch.manual_seed(0)
+    with tempfile.TemporaryDirectory() as d:
+        every_tenth = ",".join(str(i) for i in range(0, 160, 10))
+        plan = resolve_plan(size=(h, w), seed=0, split="train", pairs=1, transforms=every_tenth, blend="paper")
+        generate(plan, Path(d) / "ds", shard_size=16, workers=2)
+        ds = ShardDataset([Path(d) / "ds"], Augment(crop=(h, w), scale=(1.0, 1.0)))
+        loader = DataLoader(ds, batch_size=args.batch, sampler=StreamSampler(len(ds), 0), num_workers=args.workers)
+        it = iter(loader)
+        next(it)
+        t = time.perf_counter()
+        n = 4
+        for _ in range(n):
+            next(it)
+        load_rate = n * args.batch / (time.perf_counter() - t)
+
+        model = build_model(args.model)
+        opt = torch.optim.AdamW(model.parameters(), lr=4e-4)
+        batch = next(it)
+        times = []
+        for _ in range(args.steps + 1):
+            t = time.perf_counter()
+            preds = model(batch["img0"], batch["img1"])
+            loss, _ = sequence_loss(preds, batch["flow"], batch["valid"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            times.append(time.perf_counter() - t)
+        train_rate = args.batch / statistics.median(times[1:])
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
+
+        model.eval()
+        x0, x1 = batch["img0"][:1], batch["img1"][:1]
+        inf = []
+        with torch.no_grad():
+            for _ in range(6):
+                t = time.perf_counter()
+                model(x0, x1)
+                inf.append(time.perf_counter() - t)
+    print(f"machine: {platform.machine()}, torch {torch.__version__}, {torch.get_num_threads()} threads")
+    print(f"model {args.model}: {count_parameters(model) / 1e6:.2f} M parameters; batch {args.batch} at {h}x{w}")
+    print(f"loader ({args.workers} workers): {load_rate:6.1f} samples/s")
+    print(f"training step:     {train_rate:6.2f} samples/s ({statistics.median(times[1:]):.2f} s/step)")
+    print(f"inference:         {1e3 * statistics.median(inf[1:]):6.0f} ms per pair (batch 1)")
+    print(f"peak RSS:          {peak:6.0f} MiB")
+
+
+if __name__ == "__main__":
+    main()
