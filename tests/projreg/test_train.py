@@ -107,3 +107,21 @@ def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
     sums = __import__("json").loads((run / "ddp_params.json").read_text())
     assert len(sums) == 2 and sums[0] == sums[1]
     assert torch.load(run / "checkpoints" / "last.pt", weights_only=True)["step"] == 3
+
+
+def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tiny_train, tmp_path, monkeypatch):
+    import projreg.train as tr
+
+    real = tr.sequence_loss
+    calls = {"n": 0}
+
+    def poisoned(preds, flow, valid, gamma):
+        calls["n"] += 1
+        loss, stats = real(preds, flow, valid, gamma=gamma)
+        return (loss * float("nan") if calls["n"] == 7 else loss), stats
+
+    monkeypatch.setattr(tr, "sequence_loss", poisoned)
+    with pytest.raises(ProjregError, match="non-finite loss at step 7"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=20, ckpt_every=5))
+    ck = load_checkpoint(tmp_path / "r" / "checkpoints" / "last.pt")
+    assert ck["step"] == 5 and all(torch.isfinite(v).all() for v in ck["model"].values())
