@@ -81,5 +81,79 @@ def train(
                    err=True)  # fmt: skip
 
 
+@app.command()
+def bench(
+    data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).")],
+    model: Annotated[list[Path] | None, typer.Option(help="Checkpoint (repeatable); default: the reference.")] = None,
+    baselines: Annotated[str | None, typer.Option(help="Comma list, or none (default: dis-fast,dis-medium,"
+                                                      "farneback,sift-ransac).", show_default=False)] = None,
+    equalize: Annotated[bool, typer.Option("--equalize", help="Equalise histograms for the baselines.")] = False,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON.")] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.")] = None,
+    fail_above: Annotated[list[str] | None, typer.Option(help="METRIC=VALUE gate on models (repeatable).")] = None,
+    limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
+    from . import bench as lib
+    from .baselines import parse_baselines
+
+    try:
+        thresholds = [lib.parse_threshold(spec) for spec in fail_above or []]
+        if baselines is None:
+            names = list(lib.DEFAULT_BASELINES)
+        else:
+            names = [] if baselines.strip().lower() == "none" else parse_baselines(baselines)
+        with tqdm(desc="bench", unit="pair", disable=quiet, file=sys.stderr, leave=False) as bar:
+            def progress(done: int, total: int) -> None:
+                bar.total = total
+                bar.update(done - bar.n)
+
+            report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, limit=limit,
+                                   progress=progress)  # fmt: skip
+        if json_out is not None:
+            lib.write_json(json_out, report)
+        if markdown is not None:
+            lib.write_text_atomic(markdown, lib.to_markdown(report))
+        violations = lib.check_thresholds(report, thresholds)
+    except ProjregError as e:
+        raise _fail(e) from None
+    if markdown is None:
+        typer.echo(lib.compact_table(report))
+    if not model and report["reference_model"] is None:
+        typer.echo("projreg: no shipped reference model yet; benchmarked the baselines only", err=True)
+    for line in violations:
+        typer.echo(f"projreg: fail-above: {line}", err=True)
+    if violations:
+        raise typer.Exit(1)
+
+
+@app.command()
+def predict(
+    projected: Annotated[Path, typer.Option(help="Projected image, or a folder of them.")],
+    captured: Annotated[Path, typer.Option(help="Captured image, or a folder (same relative names).")],
+    out: Annotated[Path, typer.Option(help="Flow EXR file, or output folder (folder mode).")],
+    viz: Annotated[Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).")] = None,
+    model: Annotated[Path | None, typer.Option(help="Checkpoint; default: the shipped reference model.")] = None,
+    max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
+    from .predict import predict as run_predict
+
+    try:
+        with tqdm(desc="predict", unit="pair", disable=quiet, file=sys.stderr, leave=False) as bar:
+            def progress(done: int, total: int) -> None:
+                bar.total = total
+                bar.update(done - bar.n)
+
+            written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
+                                  progress=progress)  # fmt: skip
+    except ProjregError as e:
+        raise _fail(e) from None
+    if not quiet:
+        typer.echo(f"{len(written)} flow file(s) written: {out}", err=True)
+
+
 if __name__ == "__main__":
     app()

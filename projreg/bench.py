@@ -1,0 +1,284 @@
+"""``projreg bench``: models and classical baselines on the same shards, in one run, one report.
+
+Every method sees every evaluated sample, ``predict(projected, captured) -> flow``; metrics are the
+pooled ones of :class:`~projreg.metrics.EPEAccumulator` (EPE, buckets, outlier rates, per-image mean),
+overall and per group of samples:
+
+* ``role``: ``natural_on_generated`` / ``generated_on_natural`` (``params["role"]``);
+* ``family``: geometry family of the transform (``params["transform"]["family"]``);
+* ``condition``: photometric condition (``params["transform"]["condition"]``);
+* ``pair_role``: ``"pair P / ROLE"``, the columns of the paper's Table 2.
+
+Groups appear in the order of their first sample. ``ms_per_pair`` is the median wall-clock time of
+one ``predict`` call over the samples, after one untimed warm-up call on the first sample.
+The report schema is documented in docs/projreg-cli.md.
+
+Convention: flow forward, projected -> captured, ``(H, W, 2)`` in pixels, ``flow[y, x] = (u, v)``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from projsynth import ProjsynthError
+from projsynth.shards import ShardReader
+
+from . import ProjregError
+from .baselines import make_baseline
+from .evaluate import predict_flow
+from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
+from .predict import default_device, load_model, reference_checkpoint, write_atomic
+
+DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
+GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
+GROUPS = ("role", "family", "condition", "pair_role")
+TABLE_METRICS = (("EPE", "epe"), *((b, b) for b in BUCKETS))
+
+
+@dataclass(frozen=True)
+class Method:
+    """A named predictor: ``predict(projected, captured)`` -> float32 flow ``(H, W, 2)``.
+
+    ``kind`` is ``"model"`` (gated by ``--fail-above``) or ``"baseline"`` (never gated).
+    """
+
+    name: str
+    kind: str
+    predict: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def model_method(path: Path, device: torch.device, name: str | None = None) -> Method:
+    """A checkpoint as a method named ``name`` (default: the file stem)."""
+    model = load_model(path, device)
+    return Method(name or Path(path).stem, "model", lambda img0, img1: predict_flow(model, img0, img1, device))
+
+
+def baseline_method(name: str, equalize: bool = False) -> Method:
+    """A classical baseline by registry name (``projreg.baselines.BASELINES``)."""
+    return Method(name, "baseline", make_baseline(name, equalize).predict)
+
+
+def sample_indices(n: int, limit: int | None) -> list[int]:
+    """All of ``range(n)``, or ``limit`` indices spread evenly over it (first and last included).
+
+    Example:
+        >>> sample_indices(16, 4)
+        [0, 5, 10, 15]
+    """
+    if limit is not None and limit < 1:
+        raise ProjregError(f"--limit must be >= 1, got {limit}")
+    if limit is None or limit >= n:
+        return list(range(n))
+    return [int(i) for i in np.linspace(0, n - 1, limit).astype(int)]
+
+
+def sample_groups(params: dict) -> dict[str, str]:
+    """The group of a sample under each key of ``GROUPS``, from its shard parameters."""
+    try:
+        role, pair = params["role"], params["pair"]
+        family, condition = params["transform"]["family"], params["transform"]["condition"]
+    except (KeyError, TypeError) as e:
+        raise ProjregError(f"sample {params.get('sample_id')!r} lacks parameter {e}; regenerate the dataset") from e
+    return {"role": role, "family": family, "condition": condition, "pair_role": f"pair {pair} / {role}"}
+
+
+class _Scores:
+    """One method's accumulators (overall and per group) and per-sample timings."""
+
+    def __init__(self) -> None:
+        self.all = EPEAccumulator()
+        self.groups: dict[str, dict[str, EPEAccumulator]] = {g: {} for g in GROUPS}
+        self.ms: list[float] = []
+
+    def add(self, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, groups: dict[str, str]) -> None:
+        one = EPEAccumulator()
+        one.add(pred, gt, valid)
+        self.all.merge(one)
+        for g, key in groups.items():
+            self.groups[g].setdefault(key, EPEAccumulator()).merge(one)
+
+    def result(self, method: Method) -> dict:
+        out = {"name": method.name, "kind": method.kind, **self.all.result()}
+        out["ms_per_pair"] = float(np.median(self.ms)) if self.ms else None
+        out["groups"] = {g: {k: acc.result() for k, acc in accs.items()} for g, accs in self.groups.items()}
+        return out
+
+
+def resolve_methods(
+    models: Sequence[Path], baselines: Sequence[str], *, equalize: bool = False, device: torch.device | None = None
+) -> tuple[list[Method], Path | None]:
+    """Checkpoints then baselines as methods; without checkpoints, the shipped reference model if any.
+
+    Returns:
+        ``(methods, reference)``: ``reference`` is the shipped checkpoint when it was added, else None.
+        A checkpoint whose stem is already taken is named by its path without suffix.
+    """
+    device = device or default_device()
+    reference = None if models else reference_checkpoint()
+    methods: list[Method] = []
+    if reference is not None:
+        methods.append(model_method(reference, device, "reference"))
+    paths = [Path(p) for p in models]
+    for i, path in enumerate(paths):
+        if path.resolve() in {q.resolve() for q in paths[:i]}:
+            raise ProjregError(f"--model {path}: given twice")
+    for path in paths:
+        taken = {m.name for m in methods} | set(baselines)
+        methods.append(model_method(path, device, path.stem if path.stem not in taken else str(path.with_suffix(""))))
+    methods += [baseline_method(name, equalize) for name in baselines]
+    return methods, reference
+
+
+def run_bench(
+    data: Path,
+    *,
+    models: Sequence[Path] = (),
+    baselines: Sequence[str] = DEFAULT_BASELINES,
+    equalize: bool = False,
+    limit: int | None = None,
+    extra_methods: Sequence[Method] = (),
+    device: torch.device | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict:
+    """Benchmark checkpoints and baselines on one dataset directory.
+
+    Args:
+        data: a projsynth dataset directory (``manifest.json`` + shards).
+        models: checkpoint paths; empty: the shipped reference model when it exists.
+        baselines: baseline registry names, in report order.
+        equalize: histogram-equalise both images before the baselines (see ``projreg.baselines``).
+        limit: evaluate ``limit`` samples spread evenly over the dataset (None: all).
+        extra_methods: more methods, reported after the others (a hook for callers and tests).
+        device: where models run; default CUDA when available, else CPU.
+        progress: called ``(done, total)`` after each sample.
+
+    Returns:
+        The report: ``{"dataset": {...}, "reference_model": str | None, "results": [...]}``, one
+        result per method (see docs/projreg-cli.md).
+    """
+    data = Path(data)
+    try:
+        reader = ShardReader(data)
+    except ProjsynthError as e:
+        raise ProjregError(f"--data {data}: {e}") from e
+    try:
+        indices = sample_indices(len(reader), limit)
+        if not indices:
+            raise ProjregError(f"--data {data}: the dataset has no samples")
+        methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device)
+        methods += list(extra_methods)
+        if not methods:
+            raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")
+        names = [m.name for m in methods]
+        if len(set(names)) < len(names):
+            raise ProjregError(f"method names must be unique, got {', '.join(names)}")
+        scores = [_Scores() for _ in methods]
+        first = _read(reader, indices[0])
+        for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
+            m.predict(first["projected"], first["captured"])
+        for done, k in enumerate(indices, start=1):
+            s = first if done == 1 else _read(reader, k)
+            groups = sample_groups(s["params"])
+            for m, sc in zip(methods, scores, strict=True):
+                t0 = time.perf_counter()
+                pred = m.predict(s["projected"], s["captured"])
+                sc.ms.append(1000 * (time.perf_counter() - t0))
+                sc.add(pred, s["flow"], s["valid"], groups)
+            if progress:
+                progress(done, len(indices))
+    finally:
+        reader.close()
+    man = reader.manifest
+    dataset = {"path": str(data), "num_samples": len(reader), "evaluated": len(indices), "size": man.get("size"),
+               "seed": man.get("seed"), "split": man.get("split"), "config_hash": man.get("config_hash")}  # fmt: skip
+    return {"dataset": dataset, "reference_model": None if reference is None else str(reference),
+            "results": [sc.result(m) for m, sc in zip(methods, scores, strict=True)]}  # fmt: skip
+
+
+def _read(reader: ShardReader, k: int) -> dict:
+    try:
+        return reader.read(k)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+
+
+def parse_threshold(spec: str) -> tuple[str, float]:
+    """``"METRIC=VALUE"`` -> ``(metric, value)``; METRIC one of ``GATED``.
+
+    Example:
+        >>> parse_threshold("s40+=12.5")
+        ('s40+', 12.5)
+    """
+    metric, sep, text = spec.partition("=")
+    metric = metric.strip()
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not sep or metric not in GATED or not math.isfinite(value):
+        raise ProjregError(f"--fail-above: expected METRIC=VALUE with METRIC in {', '.join(GATED)} and a finite "
+                           f"VALUE, got {spec!r}")  # fmt: skip
+    return metric, value
+
+
+def check_thresholds(report: dict, thresholds: Sequence[tuple[str, float]]) -> list[str]:
+    """One line per model result whose metric exceeds its threshold (baselines are never gated).
+
+    A metric that is null (no pixel behind it) passes. Gating a report without any model result
+    is an error: the gate would pass without testing anything.
+    """
+    models = [r for r in report["results"] if r["kind"] == "model"]
+    if thresholds and not models:
+        raise ProjregError("--fail-above: no model was benchmarked (no --model and no shipped reference model)")
+    return [f"{r['name']}: {metric} {r[metric]:.4f} > {limit:g}"
+            for r in models for metric, limit in thresholds if r[metric] is not None and r[metric] > limit]  # fmt: skip
+
+
+def _fmt(value: float | None, scale: float = 1.0) -> str:
+    return "–" if value is None else f"{scale * value:.2f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def compact_table(report: dict) -> str:
+    """One row per method: EPE, buckets, outlier rates in percent, ms per pair."""
+    header = ["method", "kind", "EPE", *BUCKETS, *(f"px{t} %" for t in THRESHOLDS), "ms/pair"]
+    rows = [[r["name"], r["kind"], *(_fmt(r[k]) for k in ("epe", *BUCKETS)),
+             *(_fmt(r[f"px{t}"], 100) for t in THRESHOLDS), _fmt(r["ms_per_pair"])]
+            for r in report["results"]]  # fmt: skip
+    return _table(header, rows)
+
+
+def to_markdown(report: dict) -> str:
+    """The paper's Table 2 (method x metric rows, ``pair P / role`` columns + all), then ``compact_table``."""
+    ds = report["dataset"]
+    columns = list(dict.fromkeys(k for r in report["results"] for k in r["groups"]["pair_role"]))
+    rows = [[r["name"], label, *(_fmt(r["groups"]["pair_role"].get(c, {}).get(key)) for c in columns),
+             _fmt(r[key])] for r in report["results"] for label, key in TABLE_METRICS]  # fmt: skip
+    size = "x".join(str(v) for v in ds["size"]) if ds["size"] else "?"
+    ref = report["reference_model"]
+    lines = [f"# projreg bench: {ds['path']}", "",
+             f"{ds['evaluated']} of {ds['num_samples']} samples, {size}, split {ds['split']}, seed {ds['seed']}, "
+             f"config {str(ds['config_hash'])[:12]}; reference model: {ref if ref else 'none'}.", "",
+             _table(["method", "metric", *columns, "all"], rows), "", compact_table(report), ""]  # fmt: skip
+    return "\n".join(lines)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) atomically: temporary file, fsync, rename."""
+    write_atomic(path, text.encode())
+
+
+def write_json(path: Path, report: dict) -> None:
+    write_text_atomic(path, json.dumps(report, indent=1) + "\n")

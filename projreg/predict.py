@@ -1,0 +1,227 @@
+"""``projreg predict``: run a trained model on real (projected, captured) image pairs.
+
+Each pair gives the forward flow, projected -> captured, written as the shards' flow EXR (channels
+``forward.u``, ``forward.v``, ``valid``; ``valid`` is all true here: the model has no notion of
+invalid pixels) and, optionally, a colour-wheel PNG.
+
+Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the projected grid,
+``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import os
+import secrets
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from projsynth import ProjsynthError
+from projsynth.flowio import flow_to_color, write_flow_exr
+from projsynth.sources import list_images, load_image
+
+from . import ProjregError
+from .evaluate import predict_flow
+from .model.net import SSJMFlow
+from .train import load_checkpoint, model_from_checkpoint
+
+NO_REFERENCE = "no shipped reference model yet; pass --model CKPT (train one with `projreg train`)"
+
+
+def reference_checkpoint() -> Path | None:
+    """The shipped reference model ``projreg/weights/reference.pt``, or None while none ships."""
+    ref = importlib.resources.files("projreg").joinpath("weights", "reference.pt")
+    return Path(str(ref)) if ref.is_file() else None
+
+
+def default_device() -> torch.device:
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def load_model(path: Path, device: torch.device) -> SSJMFlow:
+    """A checkpoint written by ``projreg train``, on ``device``, in eval mode; errors name the file."""
+    try:
+        ckpt = load_checkpoint(Path(path))
+    except ProjregError as e:  # torch's own message spans lines and suggests weights_only=False
+        cause = e.__cause__
+        if cause is None:
+            raise
+        raise ProjregError(f"{path}: not a readable checkpoint ({type(cause).__name__}); "
+                           "pass a file written by `projreg train`") from cause  # fmt: skip
+    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
+        raise ProjregError(f"{path}: not a projreg checkpoint (no model / model_config); pass one from `projreg train`")
+    try:
+        model = model_from_checkpoint(ckpt)
+    except (TypeError, ValueError, RuntimeError, ProjregError) as e:
+        raise ProjregError(f"{path}: checkpoint does not match the model ({type(e).__name__}: {e})") from e
+    return model.to(device).eval()
+
+
+def predict_resized(
+    model: SSJMFlow, projected: np.ndarray, captured: np.ndarray, device: torch.device, max_side: int
+) -> np.ndarray:
+    """Forward flow of one pair; pairs longer than ``max_side`` are shrunk for inference.
+
+    Args:
+        model: the network, in eval mode, on ``device``.
+        projected, captured: uint8 RGB ``(H, W, 3)`` of one size.
+        device: where the model runs.
+        max_side: the longer side the network sees at most; larger pairs are resized to fit
+            (``cv2.INTER_AREA``) and the flow brought back with ``cv2.INTER_LINEAR``, u scaled by
+            ``W / w'`` and v by ``H / h'``.
+
+    Returns:
+        float32 ``(H, W, 2)``, projected -> captured, in pixels of the original images.
+    """
+    h, w = projected.shape[:2]
+    s = max_side / max(h, w)
+    if s >= 1:
+        return predict_flow(model, projected, captured, device)
+    size = (max(1, round(w * s)), max(1, round(h * s)))  # cv2 order: (w', h')
+    small = [cv2.resize(img, size, interpolation=cv2.INTER_AREA) for img in (projected, captured)]
+    flow = predict_flow(model, small[0], small[1], device)  # [h', w', 2]
+    flow = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
+    return (flow * np.array([w / size[0], h / size[1]], np.float32)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One pair to predict and where its outputs go (``viz`` None: no PNG)."""
+
+    projected: Path
+    captured: Path
+    out: Path
+    viz: Path | None
+    sample_id: str
+
+
+def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
+    """File mode (two files) or folder mode (two folders, pairs by identical relative names).
+
+    Folder mode writes ``OUT/REL/STEM_flow.exr`` (and ``VIZ/REL/STEM_flow.png``) for every
+    ``REL/STEM.ext`` of the projected folder; the EXR's sample id is the relative path.
+    """
+    projected, captured, out = Path(projected), Path(captured), Path(out)
+    if not projected.is_dir():
+        if captured.is_dir():
+            raise ProjregError(f"--projected {projected} is a file but --captured {captured} is a folder; "
+                               "give two files or two folders")  # fmt: skip
+        return [Job(projected, captured, out, viz, projected.name)]
+    if not captured.is_dir():
+        raise ProjregError(f"--projected {projected} is a folder but --captured {captured} is not; "
+                           "give two files or two folders")  # fmt: skip
+    try:
+        rel0 = [p.relative_to(projected).as_posix() for p in list_images(projected, "--projected")]
+        rel1 = [p.relative_to(captured).as_posix() for p in list_images(captured, "--captured")]
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    set0, set1 = set(rel0), set(rel1)
+    for rel in rel0:
+        if rel not in set1:
+            raise ProjregError(f"{projected / rel}: no captured partner {captured / rel}; "
+                               "pairs match by identical relative file names")  # fmt: skip
+    for rel in rel1:
+        if rel not in set0:
+            raise ProjregError(f"{captured / rel}: no projected partner {projected / rel}; "
+                               "pairs match by identical relative file names")  # fmt: skip
+    jobs, seen = [], {}
+    for rel in rel0:
+        stem = Path(rel).with_suffix("").as_posix() + "_flow"
+        if stem in seen:
+            raise ProjregError(f"{projected / rel} and {projected / seen[stem]} would both write {out / stem}.exr; "
+                               "rename one")  # fmt: skip
+        seen[stem] = rel
+        jobs.append(Job(projected / rel, captured / rel, out / f"{stem}.exr",
+                        None if viz is None else Path(viz) / f"{stem}.png", rel))  # fmt: skip
+    return jobs
+
+
+def predict(
+    projected: Path,
+    captured: Path,
+    out: Path,
+    *,
+    viz: Path | None = None,
+    model: Path | None = None,
+    max_side: int = 1024,
+    device: torch.device | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Path]:
+    """Predict the flow of one pair of files, or of every pair of two folders.
+
+    Args:
+        projected, captured: two image files, or two folders (pairs by identical relative names).
+        out: the EXR file (file mode) or the output folder (folder mode).
+        viz: colour PNG file (file mode) or folder (folder mode); None writes none.
+        model: a ``projreg train`` checkpoint; None uses the shipped reference model.
+        max_side: longest side the network sees; larger pairs are resized (see ``predict_resized``).
+        device: default CUDA when available, else CPU.
+        progress: called ``(done, total)`` after each pair.
+
+    Returns:
+        The EXR files written, in pair order.
+    """
+    if max_side < 16:
+        raise ProjregError(f"--max-side must be >= 16, got {max_side}")
+    jobs = plan_jobs(projected, captured, out, viz)
+    device = device or default_device()
+    ckpt = model if model is not None else reference_checkpoint()
+    if ckpt is None:
+        raise ProjregError(NO_REFERENCE)
+    net = load_model(ckpt, device)
+    for k, job in enumerate(jobs):
+        img0, img1 = _load(job.projected), _load(job.captured)
+        if img0.shape != img1.shape:
+            raise ProjregError(f"{job.projected} is {img0.shape[1]}x{img0.shape[0]} but {job.captured} is "
+                               f"{img1.shape[1]}x{img1.shape[0]} (WxH); a pair must have one size")  # fmt: skip
+        flow = predict_resized(net, img0, img1, device, max_side)
+        try:
+            job.out.parent.mkdir(parents=True, exist_ok=True)
+            write_flow_exr(job.out, flow, np.ones(flow.shape[:2], bool), job.sample_id)
+            if job.viz is not None:
+                job.viz.parent.mkdir(parents=True, exist_ok=True)
+                _write_png(job.viz, flow_to_color(flow))
+        except ProjsynthError as e:
+            raise ProjregError(str(e)) from e
+        except OSError as e:  # mkdir
+            raise ProjregError(f"{e.filename}: cannot create ({e.strerror or e}); check the path") from e
+        if progress:
+            progress(k + 1, len(jobs))
+    return [job.out for job in jobs]
+
+
+def _load(path: Path) -> np.ndarray:
+    try:
+        return load_image(path)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise ProjregError(f"{path}: PNG encoding failed")
+    write_atomic(path, data.tobytes())
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` through a temporary file in the same folder, fsync, then rename: never half a file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        try:
+            with open(tmp, "xb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    except OSError as e:
+        raise ProjregError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e

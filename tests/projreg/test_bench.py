@@ -1,0 +1,227 @@
+import hashlib
+import json
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+import projreg.bench
+from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices
+from projreg.cli import app
+from projreg.evaluate import predict_flow
+from projreg.metrics import KEYS, EPEAccumulator
+from projreg.predict import load_model
+from projreg.train import TrainConfig, train
+from projsynth.shards import ShardReader
+
+CPU = torch.device("cpu")
+ROLES = {"natural_on_generated", "generated_on_natural"}
+FAMILIES = {"planar", "lens", "cylinder_convex", "cylinder_concave", "sphere_convex", "sphere_concave", "wave", "bumps"}
+SHIFT = np.array([1.2, 1.6], np.float32)  # |SHIFT| = 2 px
+
+
+@pytest.fixture(scope="session")
+def tiny_ckpt(tiny_train, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench-run") / "run"
+    train(TrainConfig(data=[str(tiny_train)], out=str(out), steps=2, batch_size=1, workers=0, crop=None))
+    return out / "checkpoints" / "last.pt"
+
+
+def _samples(root, indices=None):
+    reader = ShardReader(root)
+    try:
+        return [reader.read(k) for k in (indices if indices is not None else range(len(reader)))]
+    finally:
+        reader.close()
+
+
+def _key(img0, img1):
+    return hashlib.sha256(img0.tobytes() + img1.tobytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def oracles(tiny_train):
+    """A zero-flow predictor and a ground truth shifted by SHIFT (EPE exactly 2 px everywhere)."""
+    gt = {_key(s["projected"], s["captured"]): s["flow"] for s in _samples(tiny_train)}
+    zero = Method("zero", "baseline", lambda a, b: np.zeros((*a.shape[:2], 2), np.float32))
+    shifted = Method("shifted", "baseline", lambda a, b: gt[_key(a, b)] + SHIFT)
+    return [zero, shifted]
+
+
+@pytest.fixture(scope="module")
+def report(tiny_train, tiny_ckpt, oracles):
+    return run_bench(tiny_train, models=[tiny_ckpt], baselines=["dis-medium"], extra_methods=oracles, device=CPU)
+
+
+def _by_name(report):
+    return {r["name"]: r for r in report["results"]}
+
+
+def _one_line_error(result, *needles):
+    assert result.exit_code == 2, (result.exit_code, result.stderr, result.exception)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("projreg: error: "), lines
+    for needle in needles:
+        assert str(needle) in lines[0], (needle, lines[0])
+
+
+def _cli(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_report_schema(report, tiny_train):
+    assert set(report) == {"dataset", "reference_model", "results"}
+    manifest = json.loads((tiny_train / "manifest.json").read_text())
+    assert report["dataset"] == {"path": str(tiny_train), "num_samples": 16, "evaluated": 16, "size": [64, 96],
+                                 "seed": 0, "split": "train", "config_hash": manifest["config_hash"]}  # fmt: skip
+    assert report["reference_model"] is None
+    assert [(r["name"], r["kind"]) for r in report["results"]] == [
+        ("last", "model"), ("dis-medium", "baseline"), ("zero", "baseline"), ("shifted", "baseline")]  # fmt: skip
+    for r in report["results"]:
+        assert set(r) == {"name", "kind", *KEYS, "ms_per_pair", "groups"}
+        assert r["ms_per_pair"] > 0
+        assert tuple(r["groups"]) == GROUPS
+        assert set(r["groups"]["role"]) == ROLES
+        assert set(r["groups"]["family"]) == FAMILIES
+        assert set(r["groups"]["condition"]) == {"studio", "night", "daylight", "translucent", "noisy"}
+        assert list(r["groups"]["pair_role"]) == ["pair 0 / natural_on_generated", "pair 0 / generated_on_natural"]
+        for group in r["groups"].values():
+            for res in group.values():
+                assert set(res) == set(KEYS)
+    json.dumps(report, allow_nan=False)
+
+
+@pytest.mark.parametrize("name", ["last", "dis-medium"])
+def test_pooled_metrics_equal_direct_recomputation(report, tiny_train, tiny_ckpt, name):
+    if name == "last":
+        model = load_model(tiny_ckpt, CPU)
+        predict = lambda a, b: predict_flow(model, a, b, CPU)  # noqa: E731
+    else:
+        predict = projreg.bench.baseline_method("dis-medium").predict
+    acc = EPEAccumulator()
+    for s in _samples(tiny_train):
+        acc.add(predict(s["projected"], s["captured"]), s["flow"], s["valid"])
+    direct, got = acc.result(), _by_name(report)[name]
+    for key in KEYS:
+        if direct[key] is None:  # the tiny set has no flow above 10 px
+            assert got[key] is None, key
+        else:
+            assert got[key] == pytest.approx(direct[key], rel=1e-9, abs=1e-12), key
+
+
+def test_groups_partition_the_pixels(report):
+    for r in report["results"]:
+        for kind in GROUPS:
+            groups = r["groups"][kind].values()
+            assert sum(g["pixels"] for g in groups) == r["pixels"], (r["name"], kind)
+            assert sum(g["images"] for g in groups) == r["images"] == 16
+            pooled = sum(g["epe"] * g["pixels"] for g in groups) / r["pixels"]
+            assert pooled == pytest.approx(r["epe"], rel=1e-9)
+
+
+def test_zero_predictor_and_shifted_oracle_give_hand_computed_metrics(report, tiny_train):
+    samples = _samples(tiny_train)
+    mags = [np.hypot(*s["flow"][s["valid"]].astype(np.float64).T) for s in samples]
+    mag = np.concatenate(mags)
+    res = _by_name(report)
+    zero = res["zero"]
+    assert zero["pixels"] == sum(int(s["valid"].sum()) for s in samples) == mag.size
+    assert zero["epe"] == pytest.approx(mag.mean(), rel=1e-9)
+    assert zero["s0-10"] == pytest.approx(mag[mag < 10].mean(), rel=1e-9)
+    assert zero["s40+"] is None and not (mag > 40).any()
+    assert zero["px1"] == pytest.approx((mag > 1).mean(), rel=1e-9)
+    role0 = np.concatenate([m for m, s in zip(mags, samples, strict=True)
+                            if s["params"]["role"] == "natural_on_generated"])  # fmt: skip
+    assert zero["groups"]["role"]["natural_on_generated"]["epe"] == pytest.approx(role0.mean(), rel=1e-9)
+
+    shifted = res["shifted"]
+    assert shifted["epe"] == pytest.approx(2.0, abs=1e-4) and shifted["image_epe"] == pytest.approx(2.0, abs=1e-4)
+    assert (shifted["px1"], shifted["px3"], shifted["px5"]) == (1.0, 0.0, 0.0)
+    for group in shifted["groups"].values():
+        for g in group.values():
+            assert g["epe"] == pytest.approx(2.0, abs=1e-4)
+    # a real method must beat predicting no motion
+    assert res["dis-medium"]["epe"] < 0.7 * zero["epe"]
+
+
+def test_limit_spreads_samples_and_no_reference_runs_baselines_only(tiny_train, tmp_path, monkeypatch):
+    assert sample_indices(16, 4) == [0, 5, 10, 15]
+    assert sample_indices(3, 10) == [0, 1, 2]
+    monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
+    out = tmp_path / "b.json"
+    result = _cli("bench", "--data", tiny_train, "--baselines", "dis-fast", "--limit", "4", "--json", out, "-q")
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    assert "no shipped reference model" in result.stderr
+    rep = json.loads(out.read_text())
+    assert rep["reference_model"] is None and rep["dataset"]["evaluated"] == 4
+    (r,) = rep["results"]
+    assert r["name"] == "dis-fast" and r["images"] == 4
+    acc = EPEAccumulator()
+    predict = projreg.bench.baseline_method("dis-fast").predict
+    for s in _samples(tiny_train, [0, 5, 10, 15]):
+        acc.add(predict(s["projected"], s["captured"]), s["flow"], s["valid"])
+    assert r["epe"] == pytest.approx(acc.result()["epe"], rel=1e-9)
+
+
+def test_shipped_reference_is_benchmarked_without_model(tiny_train, tiny_ckpt, monkeypatch):
+    monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: tiny_ckpt)
+    rep = run_bench(tiny_train, baselines=[], limit=2, device=CPU)
+    assert rep["reference_model"] == str(tiny_ckpt)
+    assert [(r["name"], r["kind"]) for r in rep["results"]] == [("reference", "model")]
+
+
+def test_fail_above_gates_models_only(tiny_train, tiny_ckpt, tmp_path):
+    out = tmp_path / "b.json"
+    base = ["bench", "--data", tiny_train, "--model", tiny_ckpt, "--baselines", "dis-fast", "--limit", "2", "-q"]
+    result = _cli(*base, "--json", out, "--fail-above", "epe=0.0001", "--fail-above", "px5=1")
+    assert result.exit_code == 1, (result.stderr, result.exception)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "last" in lines[0] and "epe" in lines[0] and "0.0001" in lines[0], lines
+    epe = json.loads(out.read_text())["results"][0]["epe"]  # written before gating
+    assert f"{epe:.4f}" in lines[0]
+    assert _cli(*base, "--fail-above", "epe=1e9").exit_code == 0
+    _one_line_error(_cli(*base, "--fail-above", "nonsense"), "--fail-above", "nonsense")
+    _one_line_error(_cli(*base, "--fail-above", "px9=1"), "--fail-above")
+    with pytest.raises(Exception, match="--fail-above"):
+        parse_threshold("epe=nan")
+
+
+def test_markdown_has_table2_rows_and_compact_table(tiny_train, tiny_ckpt, tmp_path):
+    md, js = tmp_path / "b.md", tmp_path / "b.json"
+    args = ["bench", "--data", tiny_train, "--model", tiny_ckpt, "--baselines", "dis-fast,farneback", "--limit", "3"]
+    result = _cli(*args, "--markdown", md, "--json", js, "-q")
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    assert result.stdout == ""
+    lines = md.read_text().splitlines()
+    header = "| method | metric | pair 0 / natural_on_generated | pair 0 / generated_on_natural | all |"
+    assert lines.count(header) == 1
+    results = json.loads(js.read_text())["results"]
+    for r in results:
+        for label, key in (("EPE", "epe"), ("s0-10", "s0-10"), ("s10-40", "s10-40"), ("s40+", "s40+")):
+            (row,) = [line for line in lines if line.startswith(f"| {r['name']} | {label} |")]
+            cells = [c.strip() for c in row.strip("|").split("|")]
+            assert len(cells) == 5
+            assert cells[-1] == ("–" if r[key] is None else f"{r[key]:.2f}")
+    compact = [line for line in lines if line.startswith("| method | kind | EPE |")]
+    assert len(compact) == 1
+    stdout = _cli(*args, "-q").stdout.splitlines()
+    assert stdout[0] == compact[0] and len(stdout) == 2 + len(results)
+    assert [line.split("|")[1].strip() for line in stdout[2:]] == ["last", "dis-fast", "farneback"]
+
+
+def test_errors_name_the_path(tiny_train, tmp_path):
+    missing = tmp_path / "nope"
+    _one_line_error(_cli("bench", "--data", missing, "-q"), missing)
+    bad_ckpt = tmp_path / "bad.pt"
+    bad_ckpt.write_bytes(b"not a checkpoint")
+    _one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "-q"), bad_ckpt)
+    corrupt = tmp_path / "corrupt"
+    corrupt.mkdir()
+    for f in tiny_train.iterdir():
+        (corrupt / f.name).write_bytes(f.read_bytes())
+    (corrupt / "shard-00001.h5").write_bytes(b"garbage" * 100)
+    _one_line_error(_cli("bench", "--data", corrupt, "--baselines", "dis-fast", "-q"), corrupt / "shard-00001.h5")
+    _one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "nope", "-q"), "nope")
+    _one_line_error(_cli("bench", "--data", tiny_train, "--limit", "0", "-q"), "--limit")
+    _one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "--model", bad_ckpt, "-q"), "twice")

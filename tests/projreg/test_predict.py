@@ -1,0 +1,127 @@
+import cv2
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+import projreg.predict
+from projreg.cli import app
+from projreg.evaluate import predict_flow
+from projreg.predict import load_model
+from projreg.train import TrainConfig, train
+from projsynth.flowio import flow_to_color, read_flow_exr
+from projsynth.shards import ShardReader
+
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(scope="session")
+def tiny_ckpt(tiny_train, tmp_path_factory):
+    out = tmp_path_factory.mktemp("predict-run") / "run"
+    train(TrainConfig(data=[str(tiny_train)], out=str(out), steps=2, batch_size=1, workers=0, crop=None))
+    return out / "checkpoints" / "last.pt"
+
+
+@pytest.fixture(scope="module")
+def pairs(tiny_train):
+    """Two shard samples as (projected, captured) RGB arrays."""
+    reader = ShardReader(tiny_train)
+    try:
+        return [(s["projected"], s["captured"]) for s in (reader.read(0), reader.read(13))]
+    finally:
+        reader.close()
+
+
+def _write(path, rgb):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    assert cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    return path
+
+
+def _cli(*args):
+    return CliRunner().invoke(app, ["predict", *(str(a) for a in args), "-q"])
+
+
+def _one_line_error(result, *needles):
+    assert result.exit_code == 2, (result.exit_code, result.stderr, result.exception)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("projreg: error: "), lines
+    for needle in needles:
+        assert str(needle) in lines[0], (needle, lines[0])
+
+
+def test_file_mode_writes_the_model_flow_as_exr_and_png(pairs, tiny_ckpt, tmp_path):
+    img0, img1 = pairs[0]
+    a, b = _write(tmp_path / "a.png", img0), _write(tmp_path / "b.png", img1)
+    out, viz = tmp_path / "o" / "flow.exr", tmp_path / "flow.png"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--viz", viz, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    flow, valid, header = read_flow_exr(out)
+    assert flow.shape == (64, 96, 2) and valid.all()
+    assert header["sample_id"] == "a.png" and header["direction"] == "projected->captured"
+    # the same numbers as the model run directly on the arrays: order, channels and direction wired right
+    expected = predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU)
+    np.testing.assert_allclose(flow, expected, atol=1e-4)
+    png = cv2.cvtColor(cv2.imread(str(viz)), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(png, flow_to_color(flow))
+    assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+def test_folder_mode_pairs_by_relative_name(pairs, tiny_ckpt, tmp_path):
+    names = ["x.png", "sub/y.png"]
+    for name, (img0, img1) in zip(names, pairs, strict=True):
+        _write(tmp_path / "P" / name, img0)
+        _write(tmp_path / "C" / name, img1)
+    out, viz = tmp_path / "out", tmp_path / "viz"
+    result = _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--viz", viz,
+                  "--model", tiny_ckpt)  # fmt: skip
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    model = load_model(tiny_ckpt, CPU)
+    for name, stem, (img0, img1) in zip(names, ["x_flow", "sub/y_flow"], pairs, strict=True):
+        flow, _, header = read_flow_exr(out / f"{stem}.exr")
+        assert header["sample_id"] == name
+        np.testing.assert_allclose(flow, predict_flow(model, img0, img1, CPU), atol=1e-4)
+        assert (viz / f"{stem}.png").is_file()
+
+
+def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_path):
+    img0, img1 = pairs[0]
+    # pixel replication: INTER_AREA at 1/2 gives back exactly the original pair
+    big0, big1 = (np.repeat(np.repeat(i, 2, axis=0), 2, axis=1) for i in (img0, img1))
+    a, b = _write(tmp_path / "a.png", big0), _write(tmp_path / "b.png", big1)
+    out = tmp_path / "f.exr"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt, "--max-side", "96")
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    flow, _, _ = read_flow_exr(out)
+    assert flow.shape == (128, 192, 2)
+    small = predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU)  # [64, 96, 2]
+    assert np.median(np.abs(small)) > 0.1  # a meaningful comparison needs non-zero flow
+    # each 2x2 block of the big flow, in big-image pixels, is twice the small flow at that pixel
+    blocks = flow.reshape(64, 2, 96, 2, 2).mean(axis=(1, 3))
+    rel = np.abs(blocks - 2 * small) / np.maximum(np.abs(2 * small), 1e-3)
+    assert np.median(rel) < 0.1, np.median(rel)
+    # exactly: the small flow, bilinearly enlarged, times W/w' = H/h' = 2
+    np.testing.assert_allclose(flow, 2 * cv2.resize(small, (192, 128), interpolation=cv2.INTER_LINEAR), atol=1e-3)
+
+
+def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeypatch):
+    img0, img1 = pairs[0]
+    a, b = _write(tmp_path / "a.png", img0), _write(tmp_path / "b.png", img1)
+    small = _write(tmp_path / "small.png", img1[:32, :48])
+    out = tmp_path / "f.exr"
+    m = ("--model", tiny_ckpt)
+    _one_line_error(_cli("--projected", a, "--captured", small, "--out", out, *m), a, small)
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"not an image")
+    _one_line_error(_cli("--projected", a, "--captured", junk, "--out", out, *m), junk)
+    _one_line_error(_cli("--projected", tmp_path / "none.png", "--captured", b, "--out", out, *m), "none.png")
+    for side in ("P", "C"):
+        _write(tmp_path / side / "both.png", img0)
+    lonely = _write(tmp_path / "C" / "lonely.png", img1)
+    _one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m),
+                    lonely)  # fmt: skip
+    _one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
+    assert not out.exists()
+    monkeypatch.setattr(projreg.predict, "reference_checkpoint", lambda: None)
+    _one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
+                    "--model")  # fmt: skip
