@@ -87,14 +87,15 @@ def main() -> None:
     args = ap.parse_args()
     size = parse_size(args.size)
     half = args.samples // 2
-    # transforms spread over every family; 2 shards so 2 workers both have one
+    # transforms spread evenly over every family
     plan = resolve_plan(size=size, seed=0, split="train", pairs=1, blend="paper",
                         transforms=",".join(str(i) for i in np.linspace(0, 159, half).astype(int)))  # fmt: skip
     make_sample(plan, 0)  # warm caches and imports
     print(f"machine: {platform.machine()} {mp.cpu_count()} cores, python {platform.python_version()}")
-    print(f"size {size[0]}x{size[1]}, {plan.num_samples} samples per gen run, shards of {half}")
-    r1 = _gen_rate(plan, half, 1)
-    r2 = _gen_rate(plan, half, 2)
+    shard = 16  # several shards per worker, so 2 workers stay busy to the end
+    print(f"size {size[0]}x{size[1]}, {plan.num_samples} samples per gen run, shards of {shard}")
+    r1 = _gen_rate(plan, shard, 1)
+    r2 = _gen_rate(plan, shard, 2)
     fl = _floor_rate(plan, plan.num_samples)
     print(f"gen  1 worker : {r1:6.1f} samples/s")
     print(f"gen  2 workers: {r2:6.1f} samples/s  ({r2 / r1:.2f}x of 1 worker)")

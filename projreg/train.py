@@ -88,8 +88,10 @@ def load_checkpoint(path: Path) -> dict:
         return torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise ProjregError(f"{path}: no such checkpoint") from None
-    except Exception as e:  # torch raises many types for corrupt files
-        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") from e
+    except Exception as e:  # torch raises many types (and multi-line messages) for corrupt files
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}: {first}); "
+                           "pass a checkpoint written by `projreg train`") from e  # fmt: skip
 
 
 def model_from_checkpoint(ckpt: dict) -> SSJMFlow:

@@ -8,9 +8,13 @@ which the next run removes. Finished shards (same config hash) are skipped.
 from __future__ import annotations
 
 import multiprocessing as mp
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+
+import cv2
+from threadpoolctl import threadpool_limits
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
 from .dataset import Plan, make_sample, source_images
@@ -76,10 +80,11 @@ def generate(
         progress(sum(_shard_count(plan, shard_size, j) for j in done))
     jobs = [(plan, out, shard_size, j, info["config_hash"]) for j in todo]
     if workers == 1 or len(jobs) <= 1:
-        for job in jobs:
-            _report(progress, _write_one(job))
+        with single_threaded():
+            for job in jobs:
+                _report(progress, _write_one(job))
     else:
-        with mp.get_context("spawn").Pool(min(workers, len(jobs))) as pool:
+        with mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=_init_worker) as pool:
             for n in pool.imap_unordered(_write_one, jobs):
                 _report(progress, n)
     manifest = None
@@ -118,6 +123,27 @@ def _prepare_dir(out: Path, info: dict) -> None:
     if (out / MANIFEST).exists() or any(out.glob("shard-*.h5")):
         raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
     write_json_atomic(plan_path, info | {"generator": f"projsynth {__version__}"})
+
+
+@contextmanager
+def single_threaded() -> Iterator[None]:
+    """One thread for BLAS/OpenMP and OpenCV while rendering: parallelism comes from worker processes.
+
+    With their default pools (2 threads each here, OpenBLAS spinning between tiny 3 x N products),
+    2 workers ran no faster than 1 (see docs/benchmarks.md).
+    """
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(1):
+            yield
+    finally:
+        cv2.setNumThreads(previous)
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)
+    threadpool_limits(1)  # for the life of the worker process
 
 
 def _shard_count(plan: Plan, shard_size: int, j: int) -> int:
