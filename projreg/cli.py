@@ -44,7 +44,9 @@ def train(
     val: Annotated[list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).")] = None,
     model: Annotated[str, typer.Option(help="small or base.")] = "small",
     no_ssjm: Annotated[bool, typer.Option("--no-ssjm", help="Build the ablation without SSJM.")] = False,
-    steps: Annotated[int, typer.Option(help="Optimiser steps (paper: 15000).")] = 15000,
+    steps: Annotated[int, typer.Option(help="Stop after this many optimiser steps (resume to go further).")] = 15000,
+    schedule_steps: Annotated[int, typer.Option(help="Length of the OneCycle schedule (paper: 15000).")] = 15000,
+    warmup_steps: Annotated[int, typer.Option(help="Linear warm-up steps of the schedule.")] = 100,
     batch_size: Annotated[int, typer.Option(help="Samples per step (per process under torchrun).")] = 8,
     lr: Annotated[float, typer.Option(help="Peak learning rate of the OneCycle schedule.")] = 4e-4,
     seed: Annotated[int, typer.Option(help="Seed of initialisation, sample order and augmentation.")] = 0,
@@ -64,7 +66,8 @@ def train(
 
     try:
         cfg = TrainConfig(data=[str(p) for p in data], out=str(out), val=[str(p) for p in val or []], model=model,
-                          use_ssjm=not no_ssjm, steps=steps, batch_size=batch_size, lr=lr, seed=seed,
+                          use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
+                          warmup_steps=warmup_steps, batch_size=batch_size, lr=lr, seed=seed,
                           workers=workers, crop=_parse_crop(crop), val_every=val_every, ckpt_every=ckpt_every,
                           log_every=log_every, amp=amp, compile=compile)  # fmt: skip
         with tqdm(total=steps, desc="train", unit="step", disable=quiet, file=sys.stderr, leave=False) as bar:

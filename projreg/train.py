@@ -22,7 +22,6 @@ import platform
 import random
 import sys
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -48,7 +47,9 @@ class TrainConfig:
     val: list[str] = field(default_factory=list)
     model: str = "small"
     use_ssjm: bool = True
-    steps: int = 15000
+    steps: int = 15000  # where this invocation stops
+    schedule_steps: int = 15000  # the OneCycle length (the paper's 15,000 iterations)
+    warmup_steps: int = 100
     batch_size: int = 8
     lr: float = 4e-4
     weight_decay: float = 1e-4
@@ -66,6 +67,9 @@ class TrainConfig:
 
     def validate(self) -> None:
         checks = [(self.steps >= 1, "--steps must be >= 1"), (self.batch_size >= 1, "--batch-size must be >= 1"),
+                  (self.steps <= self.schedule_steps, f"--steps {self.steps} exceeds --schedule-steps "
+                   f"{self.schedule_steps}; raise --schedule-steps"),
+                  (0 <= self.warmup_steps < self.schedule_steps, "--warmup-steps must be in [0, --schedule-steps)"),
                   (self.lr > 0, "--lr must be > 0"), (self.workers >= 0, "--workers must be >= 0"),
                   (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
                   (0 < self.gamma <= 1, "--gamma must be in (0, 1]")]  # fmt: skip
@@ -175,14 +179,18 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     step, best = 0, float("inf")
     if resume:
         ck = load_checkpoint(last_path)
-        if ck["train_config"]["model"] != cfg.model or ck["model_config"]["use_ssjm"] != cfg.use_ssjm:
-            raise ProjregError(f"--resume: {last_path} is a {ck['train_config']['model']} run; use the same --model")
+        old = ck["train_config"]
+        for key, option in (("model", "--model"), ("use_ssjm", "--no-ssjm"), ("schedule_steps", "--schedule-steps"),
+                            ("warmup_steps", "--warmup-steps"), ("lr", "--lr"), ("batch_size", "--batch-size"),
+                            ("seed", "--seed")):  # fmt: skip
+            if old[key] != getattr(cfg, key):
+                raise ProjregError(f"--resume: {last_path} was trained with {option} {old[key]}, not "
+                                   f"{getattr(cfg, key)}; resume with the same value")  # fmt: skip
+        if int(ck["step"]) > cfg.steps:
+            raise ProjregError(f"--resume: {last_path} is already at step {ck['step']} > --steps {cfg.steps}")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
-        if ck["train_config"]["steps"] == cfg.steps:
-            sched.load_state_dict(ck["scheduler"])
-        else:  # a longer (or shorter) run: the rest of the schedule follows the new --steps
-            sched = _schedule(opt, cfg, start=int(ck["step"]))
+        sched.load_state_dict(ck["scheduler"])
         _set_rng_state(ck["rng"])
         step, best = int(ck["step"]), float(ck["best_epe"])
     if rank == 0:
@@ -245,20 +253,15 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     return summary
 
 
-def _schedule(opt: torch.optim.Optimizer, cfg: TrainConfig, start: int = 0) -> torch.optim.lr_scheduler.LRScheduler:
-    """OneCycle over ``cfg.steps`` (5% linear warm-up, then linear decay), advanced to ``start``."""
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.steps + 1, pct_start=0.05,
-                                                cycle_momentum=False, anneal_strategy="linear")  # fmt: skip
-    lrs = [g["lr"] for g in opt.param_groups]
-    with warnings.catch_warnings():  # get_lr() outside step() warns; we only read the closed form
-        warnings.simplefilter("ignore")
-        for _ in range(start):
-            sched.last_epoch += 1
-            lrs = sched.get_lr()
-    for g, lr in zip(opt.param_groups, lrs, strict=True):
-        g["lr"] = lr
-    sched._last_lr = lrs
-    return sched
+def _schedule(opt: torch.optim.Optimizer, cfg: TrainConfig) -> torch.optim.lr_scheduler.LRScheduler:
+    """OneCycle over ``cfg.schedule_steps``: linear warm-up for ``warmup_steps``, then linear decay.
+
+    It does not depend on ``cfg.steps`` (where a run stops), so stopping at 30 and resuming to 60 is
+    the same run as going to 60 at once.
+    """
+    return torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=cfg.lr, total_steps=cfg.schedule_steps + 1, pct_start=max(cfg.warmup_steps, 1) / cfg.schedule_steps,
+        cycle_momentum=False, anneal_strategy="linear")  # fmt: skip
 
 
 def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) -> None:
