@@ -11,8 +11,6 @@ Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the pr
 from __future__ import annotations
 
 import importlib.resources
-import os
-import secrets
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +19,7 @@ import cv2
 import numpy as np
 import torch
 
-from projsynth import ProjsynthError
+from projsynth import ProjsynthError, flowio
 from projsynth.flowio import flow_to_color, write_flow_exr
 from projsynth.sources import list_images, load_image
 
@@ -210,18 +208,8 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` through a temporary file in the same folder, fsync, then rename: never half a file."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    """Atomic write (temporary file, fsync, rename); errors become one ProjregError naming the file."""
     try:
-        try:
-            with open(tmp, "xb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    except OSError as e:
-        raise ProjregError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e
+        flowio.write_atomic(Path(path), data)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e

@@ -151,7 +151,7 @@ def _read_bytes(path: Path) -> bytes:
         raise ProjsynthError(f"{path}: cannot read ({e.strerror or e}); check the path") from e
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     """Write to a temporary name in the same directory, fsync, then rename: no half-written file."""
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     try:
@@ -179,7 +179,7 @@ def read_flow_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray,
 
 def write_flow_exr(path: str | os.PathLike[str], flow: np.ndarray, valid: np.ndarray, sample_id: str) -> None:
     """Write :func:`encode_flow_exr`'s lossless (ZIP) bytes to ``path`` atomically (temp file + rename)."""
-    _atomic_write(Path(path), encode_flow_exr(flow, valid, sample_id))
+    write_atomic(Path(path), encode_flow_exr(flow, valid, sample_id))
 
 
 def write_flo(path: str | os.PathLike[str], flow: np.ndarray, valid: np.ndarray | None = None) -> None:
@@ -201,7 +201,7 @@ def write_flo(path: str | os.PathLike[str], flow: np.ndarray, valid: np.ndarray 
     if valid is not None:
         flow = np.where(_as_valid(valid, flow.shape, str(path))[..., None], flow, np.float32(FLO_UNKNOWN))
     h, w = flow.shape[:2]
-    _atomic_write(path, struct.pack("<fii", FLO_MAGIC, w, h) + flow.astype("<f4").tobytes())
+    write_atomic(path, struct.pack("<fii", FLO_MAGIC, w, h) + flow.astype("<f4").tobytes())
 
 
 def read_flo(path: str | os.PathLike[str]) -> np.ndarray:

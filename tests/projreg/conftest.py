@@ -2,6 +2,7 @@
 
 import pytest
 
+from projreg.train import TrainConfig, train
 from projsynth.dataset import resolve_plan
 from projsynth.generate import generate
 
@@ -20,3 +21,25 @@ def tiny_train(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_val(tmp_path_factory):
     return make_shards(tmp_path_factory.mktemp("tiny") / "val", split="val", transforms="10,90")
+
+
+@pytest.fixture(scope="session")
+def tiny_ckpt(tiny_train, tmp_path_factory):
+    """A 2-step checkpoint: weights are untrained, the plumbing is real."""
+    out = tmp_path_factory.mktemp("run") / "run"
+    train(TrainConfig(data=[str(tiny_train)], out=str(out), steps=2, batch_size=1, workers=0, crop=None))
+    return out / "checkpoints" / "last.pt"
+
+
+def _assert_one_line_error(result, *needles):
+    assert result.exit_code == 2, (result.exit_code, result.stderr, result.exception)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("projreg: error: "), lines
+    for needle in needles:
+        assert str(needle) in lines[0], (needle, lines[0])
+
+
+@pytest.fixture
+def one_line_error():
+    """Check a CliRunner result failed with exit 2 and one ``projreg: error:`` line naming ``needles``."""
+    return _assert_one_line_error

@@ -12,20 +12,12 @@ from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.metrics import KEYS, EPEAccumulator
 from projreg.predict import load_model
-from projreg.train import TrainConfig, train
 from projsynth.shards import ShardReader
 
 CPU = torch.device("cpu")
 ROLES = {"natural_on_generated", "generated_on_natural"}
 FAMILIES = {"planar", "lens", "cylinder_convex", "cylinder_concave", "sphere_convex", "sphere_concave", "wave", "bumps"}
 SHIFT = np.array([1.2, 1.6], np.float32)  # |SHIFT| = 2 px
-
-
-@pytest.fixture(scope="session")
-def tiny_ckpt(tiny_train, tmp_path_factory):
-    out = tmp_path_factory.mktemp("bench-run") / "run"
-    train(TrainConfig(data=[str(tiny_train)], out=str(out), steps=2, batch_size=1, workers=0, crop=None))
-    return out / "checkpoints" / "last.pt"
 
 
 def _samples(root, indices=None):
@@ -56,14 +48,6 @@ def report(tiny_train, tiny_ckpt, oracles):
 
 def _by_name(report):
     return {r["name"]: r for r in report["results"]}
-
-
-def _one_line_error(result, *needles):
-    assert result.exit_code == 2, (result.exit_code, result.stderr, result.exception)
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("projreg: error: "), lines
-    for needle in needles:
-        assert str(needle) in lines[0], (needle, lines[0])
 
 
 def _cli(*args):
@@ -171,7 +155,7 @@ def test_shipped_reference_is_benchmarked_without_model(tiny_train, tiny_ckpt, m
     assert [(r["name"], r["kind"]) for r in rep["results"]] == [("reference", "model")]
 
 
-def test_fail_above_gates_models_only(tiny_train, tiny_ckpt, tmp_path):
+def test_fail_above_gates_models_only(tiny_train, tiny_ckpt, tmp_path, one_line_error):
     out = tmp_path / "b.json"
     base = ["bench", "--data", tiny_train, "--model", tiny_ckpt, "--baselines", "dis-fast", "--limit", "2", "-q"]
     result = _cli(*base, "--json", out, "--fail-above", "epe=0.0001", "--fail-above", "px5=1")
@@ -181,8 +165,8 @@ def test_fail_above_gates_models_only(tiny_train, tiny_ckpt, tmp_path):
     epe = json.loads(out.read_text())["results"][0]["epe"]  # written before gating
     assert f"{epe:.4f}" in lines[0]
     assert _cli(*base, "--fail-above", "epe=1e9").exit_code == 0
-    _one_line_error(_cli(*base, "--fail-above", "nonsense"), "--fail-above", "nonsense")
-    _one_line_error(_cli(*base, "--fail-above", "px9=1"), "--fail-above")
+    one_line_error(_cli(*base, "--fail-above", "nonsense"), "--fail-above", "nonsense")
+    one_line_error(_cli(*base, "--fail-above", "px9=1"), "--fail-above")
     with pytest.raises(Exception, match="--fail-above"):
         parse_threshold("epe=nan")
 
@@ -210,18 +194,18 @@ def test_markdown_has_table2_rows_and_compact_table(tiny_train, tiny_ckpt, tmp_p
     assert [line.split("|")[1].strip() for line in stdout[2:]] == ["last", "dis-fast", "farneback"]
 
 
-def test_errors_name_the_path(tiny_train, tmp_path):
+def test_errors_name_the_path(tiny_train, tmp_path, one_line_error):
     missing = tmp_path / "nope"
-    _one_line_error(_cli("bench", "--data", missing, "-q"), missing)
+    one_line_error(_cli("bench", "--data", missing, "-q"), missing)
     bad_ckpt = tmp_path / "bad.pt"
     bad_ckpt.write_bytes(b"not a checkpoint")
-    _one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "-q"), bad_ckpt)
+    one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "-q"), bad_ckpt)
     corrupt = tmp_path / "corrupt"
     corrupt.mkdir()
     for f in tiny_train.iterdir():
         (corrupt / f.name).write_bytes(f.read_bytes())
     (corrupt / "shard-00001.h5").write_bytes(b"garbage" * 100)
-    _one_line_error(_cli("bench", "--data", corrupt, "--baselines", "dis-fast", "-q"), corrupt / "shard-00001.h5")
-    _one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "nope", "-q"), "nope")
-    _one_line_error(_cli("bench", "--data", tiny_train, "--limit", "0", "-q"), "--limit")
-    _one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "--model", bad_ckpt, "-q"), "twice")
+    one_line_error(_cli("bench", "--data", corrupt, "--baselines", "dis-fast", "-q"), corrupt / "shard-00001.h5")
+    one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "nope", "-q"), "nope")
+    one_line_error(_cli("bench", "--data", tiny_train, "--limit", "0", "-q"), "--limit")
+    one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "--model", bad_ckpt, "-q"), "twice")

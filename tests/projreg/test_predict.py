@@ -8,18 +8,10 @@ import projreg.predict
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.predict import load_model
-from projreg.train import TrainConfig, train
 from projsynth.flowio import flow_to_color, read_flow_exr
 from projsynth.shards import ShardReader
 
 CPU = torch.device("cpu")
-
-
-@pytest.fixture(scope="session")
-def tiny_ckpt(tiny_train, tmp_path_factory):
-    out = tmp_path_factory.mktemp("predict-run") / "run"
-    train(TrainConfig(data=[str(tiny_train)], out=str(out), steps=2, batch_size=1, workers=0, crop=None))
-    return out / "checkpoints" / "last.pt"
 
 
 @pytest.fixture(scope="module")
@@ -40,14 +32,6 @@ def _write(path, rgb):
 
 def _cli(*args):
     return CliRunner().invoke(app, ["predict", *(str(a) for a in args), "-q"])
-
-
-def _one_line_error(result, *needles):
-    assert result.exit_code == 2, (result.exit_code, result.stderr, result.exception)
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("projreg: error: "), lines
-    for needle in needles:
-        assert str(needle) in lines[0], (needle, lines[0])
 
 
 def test_file_mode_writes_the_model_flow_as_exr_and_png(pairs, tiny_ckpt, tmp_path):
@@ -104,24 +88,24 @@ def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_p
     np.testing.assert_allclose(flow, 2 * cv2.resize(small, (192, 128), interpolation=cv2.INTER_LINEAR), atol=1e-3)
 
 
-def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeypatch):
+def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeypatch, one_line_error):
     img0, img1 = pairs[0]
     a, b = _write(tmp_path / "a.png", img0), _write(tmp_path / "b.png", img1)
     small = _write(tmp_path / "small.png", img1[:32, :48])
     out = tmp_path / "f.exr"
     m = ("--model", tiny_ckpt)
-    _one_line_error(_cli("--projected", a, "--captured", small, "--out", out, *m), a, small)
+    one_line_error(_cli("--projected", a, "--captured", small, "--out", out, *m), a, small)
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not an image")
-    _one_line_error(_cli("--projected", a, "--captured", junk, "--out", out, *m), junk)
-    _one_line_error(_cli("--projected", tmp_path / "none.png", "--captured", b, "--out", out, *m), "none.png")
+    one_line_error(_cli("--projected", a, "--captured", junk, "--out", out, *m), junk)
+    one_line_error(_cli("--projected", tmp_path / "none.png", "--captured", b, "--out", out, *m), "none.png")
     for side in ("P", "C"):
         _write(tmp_path / side / "both.png", img0)
     lonely = _write(tmp_path / "C" / "lonely.png", img1)
-    _one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m),
+    one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m),
                     lonely)  # fmt: skip
-    _one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
+    one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
     assert not out.exists()
     monkeypatch.setattr(projreg.predict, "reference_checkpoint", lambda: None)
-    _one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
                     "--model")  # fmt: skip
