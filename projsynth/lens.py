@@ -134,8 +134,11 @@ def project_points(lens: Lens, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     return lens.fx * x + lens.cx, lens.fy * y + lens.cy, ok
 
 
-def in_frame(lens: Lens, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """True where ``(u, v)`` lies where bilinear sampling needs no extrapolation: ``[0, W-1] x [0, H-1]``
-    (with a 1e-6 px margin, so border pixels survive a round trip's rounding)."""
-    e = 1e-6
-    return (u >= -e) & (u <= lens.width - 1 + e) & (v >= -e) & (v <= lens.height - 1 + e)
+def in_frame(lens: Lens, u: np.ndarray, v: np.ndarray, margin: float = 1e-6) -> np.ndarray:
+    """True where ``(u, v)`` lies in ``[-margin, W-1+margin] x [-margin, H-1+margin]``.
+
+    The default (1e-6 px, so border pixels survive a round trip's rounding) is the region where
+    bilinear sampling needs no extrapolation; ``margin=0.5`` is the frame's physical extent (each
+    pixel covers +-0.5 px around its centre).
+    """
+    return (u >= -margin) & (u <= lens.width - 1 + margin) & (v >= -margin) & (v <= lens.height - 1 + margin)

@@ -82,8 +82,9 @@ def _physical(warped: np.ndarray, a: np.ndarray, bg: np.ndarray, p: dict, rng: n
 def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Sample ``image`` ``(H, W, 4)`` uint8 at float positions with exact bilinear weights.
 
-    Convention: pixel centres at integers; positions must lie in ``[0, W-1] x [0, H-1]``.
-    (``cv2.remap`` quantises positions to 1/32 px; ground truth needs the exact position.)
+    Convention: pixel centres at integers; positions outside ``[0, W-1] x [0, H-1]`` (up to the
+    frame's edge at -0.5 / W-0.5) take the border pixels' values. (``cv2.remap`` quantises positions
+    to 1/32 px; ground truth needs the exact position.)
 
     Returns:
         ``(N, 4)`` float32.
@@ -91,8 +92,10 @@ def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
     h, w, c = image.shape
     if c != 4:
         raise ValueError("sample_bilinear expects 4 channels (RGB + alpha)")
-    x0 = np.clip(x.astype(np.int32), 0, w - 2)  # x >= -1e-6, so truncation is floor
-    y0 = np.clip(y.astype(np.int32), 0, h - 2)
+    x = np.clip(x, 0, w - 1)
+    y = np.clip(y, 0, h - 1)
+    x0 = np.minimum(x.astype(np.int32), w - 2)  # x >= 0, so truncation is floor
+    y0 = np.minimum(y.astype(np.int32), h - 2)
     fx = (x - x0).astype(np.float32)[:, None]
     fy = (y - y0).astype(np.float32)[:, None]
     packed = np.ascontiguousarray(image).view(np.uint32).reshape(h * w)  # one gather per neighbour

@@ -23,6 +23,7 @@ from .surface import Surface, intersect, single_crossing
 # Why a projected pixel is invalid (bit flags, recorded per sample as pixel counts).
 MISS, OUT_OF_FRAME, OCCLUDED, LENS = 1, 2, 4, 8
 REASONS = {"miss": MISS, "out_of_frame": OUT_OF_FRAME, "occluded": OCCLUDED, "lens": LENS}
+PROJECTOR_FOOTPRINT = 0.5  # a projector pixel lights +-0.5 px around its centre
 _VISIBILITY_TOL = 1e-7  # relative distance: a hit this close to the point is the point itself
 
 
@@ -79,14 +80,15 @@ def backward(scene: Scene, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Returns:
         ``(xy, lit)``: projector pixel coordinates ``(2, N)`` and a mask of camera pixels that see a
-        surface point lit by the projector (in its frame ``[0, W-1] x [0, H-1]``, not in shadow).
+        surface point lit by the projector (inside its pixels' footprint ``[-0.5, W-0.5] x
+        [-0.5, H-0.5]``, not in shadow).
     """
     dirs_cam, lens_ok = pixels_to_rays(scene.camera, pts[0], pts[1])
     dirs = scene.R.T @ dirs_cam
     t, hit = intersect(scene.surface, scene.C[:, None], dirs)
     X = scene.C[:, None] + dirs * np.where(hit, t, 0.0)
     u, v, proj_ok = project_points(scene.projector, X)
-    lit = hit & lens_ok & proj_ok & in_frame(scene.projector, u, v)
+    lit = hit & lens_ok & proj_ok & in_frame(scene.projector, u, v, margin=PROJECTOR_FOOTPRINT)
     lit &= _visible_from(scene.surface, np.zeros(3), X, lit)
     return np.stack([u, v]), lit
 
