@@ -65,7 +65,7 @@ class ShardDataset(Dataset):
         index, aug_seed = item if isinstance(item, tuple) else (item, 0)
         j = int(np.searchsorted(self.offsets, index, side="right") - 1)
         try:
-            s = self.readers[j].read(int(index - self.offsets[j]))
+            s = self.readers[j].read(int(index - self.offsets[j]), with_params=False)
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e
         img0, img1, flow, valid = s["projected"], s["captured"], s["flow"], s["valid"]

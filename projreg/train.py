@@ -31,6 +31,9 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader
 
+from projsynth import ProjsynthError
+from projsynth.flowio import write_atomic
+
 from . import ProjregError, __version__
 from .data import Augment, ShardDataset, StreamSampler
 from .evaluate import evaluate
@@ -80,10 +83,24 @@ class TrainConfig:
 
 def _atomic_save(obj: dict, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        torch.save(obj, tmp)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise ProjregError(f"{path}: cannot write checkpoint ({e.strerror or e}); free space or fix permissions, "
+                           "then --resume") from e  # fmt: skip
+
+
+def _next_batch(batches) -> dict:
+    """The next batch; an error inside a loader worker becomes one line (torch wraps it in a traceback)."""
+    try:
+        return next(batches)
+    except ProjregError as e:
+        lines = [line for line in str(e).splitlines() if line.strip()]
+        raise ProjregError(lines[-1].removeprefix("projreg.ProjregError: ") if lines else str(e)) from None
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -182,8 +199,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         old = ck["train_config"]
         for key, option in (("model", "--model"), ("use_ssjm", "--no-ssjm"), ("schedule_steps", "--schedule-steps"),
                             ("warmup_steps", "--warmup-steps"), ("lr", "--lr"), ("batch_size", "--batch-size"),
-                            ("seed", "--seed")):  # fmt: skip
-            if old[key] != getattr(cfg, key):
+                            ("seed", "--seed"), ("data", "--data"), ("crop", "--crop"), ("gamma", "gamma"),
+                            ("weight_decay", "weight decay"), ("grad_clip", "gradient clipping"),
+                            ("amp", "--amp")):  # fmt: skip
+            if _plain(old[key]) != _plain(getattr(cfg, key)):
                 raise ProjregError(f"--resume: {last_path} was trained with {option} {old[key]}, not "
                                    f"{getattr(cfg, key)}; resume with the same value")  # fmt: skip
         if int(ck["step"]) > cfg.steps:
@@ -216,7 +235,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     batches = iter(loader)
     model.train()
     while step < cfg.steps:
-        batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
+        batch = {k: v.to(device, non_blocking=True) for k, v in _next_batch(batches).items()}
         with autocast:
             preds = net(batch["img0"], batch["img1"])
         loss, stats = sequence_loss([p.float() for p in preds], batch["flow"], batch["valid"], gamma=cfg.gamma)
@@ -253,6 +272,11 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     return summary
 
 
+def _plain(value):
+    """Tuples and lists compare equal (a checkpoint stores the crop as a list)."""
+    return list(value) if isinstance(value, tuple | list) else value
+
+
 def _schedule(opt: torch.optim.Optimizer, cfg: TrainConfig) -> torch.optim.lr_scheduler.LRScheduler:
     """OneCycle over ``cfg.schedule_steps``: linear warm-up for ``warmup_steps``, then linear decay.
 
@@ -270,9 +294,12 @@ def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) ->
                          "python": platform.python_version()},
             "command": sys.argv, "resumed": resume}  # fmt: skip
     path = out / "config.json"
-    if resume and path.exists():  # keep the original, record the resume
-        info = json.loads(path.read_text()) | {"resumed_with": sys.argv}
-    path.write_text(json.dumps(info, indent=1) + "\n")
+    try:
+        if resume and path.exists():  # keep the original, record the resume
+            info = json.loads(path.read_text()) | {"resumed_with": sys.argv}
+        write_atomic(path, (json.dumps(info, indent=1) + "\n").encode())
+    except (OSError, ValueError, ProjsynthError) as e:
+        raise ProjregError(f"{path}: cannot write the run config ({e})") from e
 
 
 def _record_ddp_agreement(model: torch.nn.Module, out: Path, rank: int, world: int) -> None:

@@ -3,7 +3,8 @@
 Sample index ``k`` in ``[0, pairs * 2 * T)`` (``T`` selected transforms) maps to
 ``pair = k // (2T)``, ``role = (k // T) % 2``, ``transform = transforms[k % T]``. Role 0 projects the
 natural image onto the generated scene, role 1 the reverse (the paper's bidirectional interchange).
-Every random draw comes from ``SeedSequence(seed, spawn_key=(split, pair, role, transform))``, so a
+Every random draw comes from ``SeedSequence(seed, spawn_key=(0, split, pair, role, transform))`` (source
+images: ``(1, split, pair, kind)``), so a
 sample never depends on the worker count, the shard size or which machine made it.
 """
 
@@ -28,7 +29,9 @@ SPLITS = ("train", "val", "test")
 ROLES = ("natural_on_generated", "generated_on_natural")
 KINDS = ("natural", "generated")
 MIN_SIZE, MAX_SIZE = 32, 4096
-_SOURCE_TAG = 7  # spawn-key slot that separates source-image draws from sample draws
+# Leading spawn-key words keep the two kinds of stream apart: (SAMPLE, split, pair, role, transform)
+# and (SOURCE, split, pair, kind) can never coincide.
+_SAMPLE, _SOURCE = 0, 1
 
 
 @dataclass(frozen=True)
@@ -152,7 +155,7 @@ def source_images(plan: Plan, pair: int) -> tuple[np.ndarray, np.ndarray, dict]:
     if plan.sources is None:
         images, names = [], {}
         for i, kind in enumerate(KINDS):
-            ss = np.random.SeedSequence(plan.seed, spawn_key=(SPLITS.index(plan.split), pair, i, _SOURCE_TAG))
+            ss = np.random.SeedSequence(plan.seed, spawn_key=(_SOURCE, SPLITS.index(plan.split), pair, i))
             rng = np.random.default_rng(ss)
             theme = THEMES[int(rng.integers(len(THEMES)))]
             images.append(render_procedural(kind, theme, plan.size, rng))
@@ -188,7 +191,7 @@ def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] 
     natural, generated, names = images if images is not None else source_images(plan, pair)
     projected, background = (natural, generated) if role == 0 else (generated, natural)
     cfg = plan.table.configs[tid]
-    ss = np.random.SeedSequence(plan.seed, spawn_key=(SPLITS.index(plan.split), pair, role, tid))
+    ss = np.random.SeedSequence(plan.seed, spawn_key=(_SAMPLE, SPLITS.index(plan.split), pair, role, tid))
     rng = np.random.default_rng(ss)
     scene, geometry = make_scene(cfg.family, cfg.geometry, rng, plan.size)
     photometry = draw(rng, cfg.photometry)

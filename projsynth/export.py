@@ -5,12 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import cv2
-import h5py
 import numpy as np
 
 from . import ProjsynthError
-from .flowio import decode_flow_exr, flow_to_color, write_flo
-from .shards import load_manifest
+from .flowio import decode_flow_exr, flow_to_color, write_atomic, write_flo
+from .shards import load_manifest, open_shard
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
@@ -34,14 +33,14 @@ def export(root: Path, out: Path, limit: int | None = None) -> int:
         raise ProjsynthError(f"--out {out}: cannot create directory ({e.strerror})") from e
     n = 0
     for entry in manifest["shards"]:
-        with h5py.File(Path(root) / entry["file"], "r") as f:
+        with open_shard(Path(root) / entry["file"]) as f:
             for i in range(entry["count"]):
                 if limit is not None and n >= limit:
                     return n
                 sid = f["sample_id"][i].decode()
                 data = f["flow_exr"][i].tobytes()
                 flow, valid, _ = decode_flow_exr(data)
-                (out / f"{sid}_flow.exr").write_bytes(data)
+                write_atomic(out / f"{sid}_flow.exr", data)
                 write_flo(out / f"{sid}_flow.flo", flow, valid)
                 _write_png(out / f"{sid}_projected.png", f["projected"][i])
                 _write_png(out / f"{sid}_captured.png", f["captured"][i])
@@ -63,7 +62,7 @@ def preview(root: Path, out: Path, count: int = 8) -> int:
     rows = []
     for k in np.linspace(0, total - 1, min(count, total)).astype(int):
         j, i = divmod(int(k), size)
-        with h5py.File(Path(root) / manifest["shards"][j]["file"], "r") as f:
+        with open_shard(Path(root) / manifest["shards"][j]["file"]) as f:
             flow, valid, _ = decode_flow_exr(f["flow_exr"][i].tobytes())
             gray = np.repeat((valid.astype(np.uint8) * 255)[..., None], 3, axis=2)
             row = np.hstack([f["projected"][i], f["captured"][i], flow_to_color(flow, valid), gray])
@@ -71,6 +70,9 @@ def preview(root: Path, out: Path, count: int = 8) -> int:
         cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 2, cv2.LINE_AA)
         cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
         rows.append(row)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ProjsynthError(f"--out {out}: cannot create its folder ({e.strerror})") from e
     _write_png(out, np.vstack(rows))
     return len(rows)

@@ -122,7 +122,7 @@ def _prepare_dir(out: Path, info: dict) -> None:
         return
     if (out / MANIFEST).exists() or any(out.glob("shard-*.h5")):
         raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
-    write_json_atomic(plan_path, info | {"generator": f"projsynth {__version__}"})
+    write_json_atomic(plan_path, info)
 
 
 @contextmanager

@@ -47,7 +47,7 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
     if family == "lens":
         s = extra["distortion_sign"]
         p_ang = rng.uniform(0, 2 * np.pi)
-        cam_dist = (s * g["cam_k1"], s * g["cam_k2"] * 0.5, g["cam_p"] * np.cos(p_ang), g["cam_p"] * np.sin(p_ang), 0.0)
+        cam_dist = (s * g["cam_k1"], s * g["cam_k2"], g["cam_p"] * np.cos(p_ang), g["cam_p"] * np.sin(p_ang), 0.0)
         proj_dist = (-s * g["proj_k1"], 0.0, 0.0, 0.0, 0.0)
         extra["tangential_angle"] = float(p_ang)
     projector = Lens(f, f, cx + jx, cy + jy, tuple(map(float, proj_dist)), width, height)

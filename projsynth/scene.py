@@ -68,9 +68,10 @@ def forward(scene: Scene, pts: np.ndarray) -> ForwardMap:
     X = dirs * np.where(hit, t, 0.0)
     u, v, cam_ok = project_points(scene.camera, scene.R @ (X - scene.C[:, None]))
     frame_ok = in_frame(scene.camera, u, v)
-    seen = _visible_from(scene.surface, scene.C, X, hit & lens_ok)
+    seen = _visible_from(scene.surface, scene.C, X, hit & lens_ok & cam_ok & frame_ok)
     reason = np.where(lens_ok & cam_ok, 0, LENS) | np.where(hit, 0, MISS)
-    reason |= np.where(hit & ~frame_ok, OUT_OF_FRAME, 0) | np.where(hit & ~seen, OCCLUDED, 0)
+    reason |= np.where(hit & ~frame_ok, OUT_OF_FRAME, 0)
+    reason |= np.where(hit & lens_ok & cam_ok & frame_ok & ~seen, OCCLUDED, 0)
     reason = reason.astype(np.uint8)
     return ForwardMap(np.stack([u, v]), reason == 0, reason)
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import FORMAT_VERSION, ProjsynthError
 from .dataset import Sample
-from .flowio import decode_flow_exr, encode_flow_exr
+from .flowio import decode_flow_exr, encode_flow_exr, write_atomic
 
 MANIFEST, PLAN_FILE = "manifest.json", "dataset.json"
 _IMAGE_OPTS = {"compression": "lzf", "track_times": False}
@@ -28,24 +28,23 @@ def shard_name(index: int) -> str:
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
-    """Write JSON to ``path`` through a fsynced temporary file and a rename."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(data, f, indent=1, sort_keys=True)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise ProjsynthError(f"{path}: cannot write ({_why(e)})") from e
+    """Write JSON to ``path`` atomically (a private temporary name, fsync, rename): concurrent writers
+    of a job array never see or publish a mix."""
+    write_atomic(path, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
 
 
 def _why(e: OSError) -> str:
     if e.errno == errno.ENOSPC:
         return "no space left on device; free space and re-run the same command to resume"
     return f"{e.strerror or e}; check the directory is writable"
+
+
+def open_shard(path: Path) -> h5py.File:
+    """Open a finished shard for reading; a missing or unreadable file is one ProjsynthError naming it."""
+    try:
+        return h5py.File(path, "r")
+    except (OSError, ValueError) as e:
+        raise ProjsynthError(f"{path}: cannot open shard ({e}); run `projsynth verify` and regenerate it") from e
 
 
 def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
@@ -168,27 +167,24 @@ class ShardReader:
         if self._pid != os.getpid():  # never share HDF5 handles across a fork
             self._files, self._pid = {}, os.getpid()
         if j not in self._files:
-            path = self.root / shard_name(j)
-            try:
-                self._files[j] = h5py.File(path, "r")
-            except OSError as e:
-                raise ProjsynthError(f"{path}: cannot open shard ({e}); run `projsynth verify {self.root}`") from e
+            self._files[j] = open_shard(self.root / shard_name(j))
         return self._files[j]
 
-    def read(self, k: int) -> dict:
+    def read(self, k: int, with_params: bool = True) -> dict:
+        """Sample ``k``; ``with_params=False`` skips parsing the parameter JSON (training needs none).
+
+        ``valid`` comes from the flow EXR (``verify`` checks it equals the ``valid`` dataset).
+        """
         if not 0 <= k < len(self):
             raise IndexError(k)
         j, i = divmod(k, self.shard_size)
         f = self._file(j)
         try:
-            flow, valid_exr, _ = decode_flow_exr(f["flow_exr"][i].tobytes())
-            return {
-                "projected": f["projected"][i],
-                "captured": f["captured"][i],
-                "valid": f["valid"][i],
-                "flow": flow,
-                "params": json.loads(f["params"][i]),
-            }
+            flow, valid, _ = decode_flow_exr(f["flow_exr"][i].tobytes())
+            out = {"projected": f["projected"][i], "captured": f["captured"][i], "valid": valid, "flow": flow}
+            if with_params:
+                out["params"] = json.loads(f["params"][i])
+            return out
         except (OSError, KeyError, ValueError) as e:
             raise ProjsynthError(f"{self.root / shard_name(j)}: sample {i} unreadable ({e}); "
                                  f"run `projsynth verify {self.root}`") from e  # fmt: skip

@@ -64,11 +64,13 @@ class Surface:
 def single_crossing(surface: Surface, o: np.ndarray, d: np.ndarray) -> np.ndarray:
     """True for rays ``(3, N)`` that provably meet the surface at most once (so nothing hides it).
 
-    Planes always; height fields when the ray is steeper than the surface's maximum slope; concave
-    quadrics when the shared origin ``o`` ``(3, 1)`` is inside them; otherwise the caller casts.
+    Planes when the eye is in front of them; height fields when the ray is steeper than the surface's
+    maximum slope; concave quadrics when the shared origin ``o`` ``(3, 1)`` is inside them; otherwise
+    the caller casts.
     """
-    if surface.kind == "plane":
-        return np.ones(d.shape[1], bool)
+    if surface.kind == "plane":  # a single crossing, if the eye is on the front side at all
+        ol, _ = surface.to_local(o, d[:, :1])
+        return np.broadcast_to(ol[2] < 0, (d.shape[1],)).copy()
     if surface.kind in _HEIGHTFIELDS:
         _, dl = surface.to_local(o, d)
         return dl[2] > _HEIGHTFIELDS[surface.kind](surface.params).slope * np.hypot(dl[0], dl[1]) * 1.0001

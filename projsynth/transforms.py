@@ -42,7 +42,7 @@ _POSE: dict[int, Ranges] = {
 }  # fmt: skip
 _CURVATURE = [(0.1, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5)]  # distance / radius
 _SHAPE: dict[str, dict[int, Ranges]] = {
-    "lens": {s: {"cam_k1": (0.03 * s, 0.07 * s), "cam_k2": (0.0, 0.01 * s), "cam_p": (0.0, 0.002 * s),
+    "lens": {s: {"cam_k1": (0.03 * s, 0.07 * s), "cam_k2": (0.0, 0.005 * s), "cam_p": (0.0, 0.002 * s),
                  "proj_k1": (0.0, 0.02 * s)} for s in SEVERITIES},
     "cylinder": {s: {"curvature": c} for s, c in zip(SEVERITIES, _CURVATURE, strict=True)},
     "sphere": {s: {"curvature": c} for s, c in zip(SEVERITIES, _CURVATURE, strict=True)},

@@ -6,13 +6,12 @@ import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from . import ProjsynthError
 from .dataset import Sample
 from .flowio import decode_flow_exr
-from .shards import file_sha256, load_manifest, shard_name
+from .shards import file_sha256, load_manifest, open_shard, shard_name
 
 BUCKETS = (("s0-10", 0.0, 10.0), ("s10-40", 10.0, 40.0), ("s40+", 40.0, np.inf))
 
@@ -23,7 +22,7 @@ def bucket_of(mag: np.ndarray) -> list[np.ndarray]:
 
 
 def _samples(path: Path) -> Iterator[tuple[int, Sample]]:
-    with h5py.File(path, "r") as f:
+    with open_shard(path) as f:
         for i in range(int(f.attrs["count"])):
             flow, valid_exr, header = decode_flow_exr(f["flow_exr"][i].tobytes())
             valid = f["valid"][i]
@@ -68,7 +67,7 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
 
 def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h: int, w: int) -> list[str]:
     out = []
-    with h5py.File(path, "r") as f:
+    with open_shard(path) as f:
         n = entry["count"]
         if f.attrs.get("config_hash") != manifest["config_hash"] or f.attrs.get("shard_index") != entry["index"]:
             out.append("attributes do not match the manifest (config hash or shard index)")

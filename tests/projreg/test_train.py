@@ -120,3 +120,21 @@ def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tiny_train, tmp_pa
         train(_cfg(tiny_train, tmp_path / "r", steps=20, ckpt_every=5))
     ck = load_checkpoint(tmp_path / "r" / "checkpoints" / "last.pt")
     assert ck["step"] == 5 and all(torch.isfinite(v).all() for v in ck["model"].values())
+
+
+def test_corrupt_shard_inside_a_loader_worker_is_one_line(tiny_train, tmp_path):
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_train, broken)
+    for shard in broken.glob("shard-*.h5"):
+        shard.write_bytes(b"not hdf5")
+    with pytest.raises(ProjregError) as info:
+        train(_cfg(broken, tmp_path / "r", steps=2, workers=1))
+    assert "\n" not in str(info.value) and "shard-0000" in str(info.value)
+
+
+def test_resume_refuses_a_different_crop(tiny_train, tmp_path):
+    train(_cfg(tiny_train, tmp_path / "r", steps=2))
+    with pytest.raises(ProjregError, match="--crop"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=4, crop=(32, 48)), resume=True)

@@ -79,3 +79,11 @@ def test_heightfield_hits_lie_on_the_surface():
     X = dirs[:, hit] * t[hit] - scene.surface.origin[:, None]
     h = 0.04 * np.sin(6.0 * X[0] + 2.0 * X[1] + 0.3)
     assert hit.all() and np.abs(X[2] - h).max() < 1e-9
+
+
+def test_plane_seen_from_behind_is_not_visible():
+    scene = _simple_scene("plane", {}, baseline_deg=150.0)  # the camera looks at the plane's back
+    fm = forward(scene, pixel_grid(H, W))
+    _, lit = backward(scene, pixel_grid(H, W))
+    assert ((fm.reason & OCCLUDED) > 0).sum() > 1000  # lit by the projector, hidden from the camera
+    assert not fm.valid.any() and not lit.any()
