@@ -14,7 +14,12 @@ import cv2
 import numpy as np
 
 from .photometric import composite, sample_bilinear
-from .scene import REASONS, Scene, backward, forward, pixel_grid
+from .scene import MISS, NEAR_EDGE, OCCLUDED, REASONS, Scene, backward, forward, pixel_grid
+
+# Valid pixels this close (projector px) to an occluded or missed one are dropped: there the camera's
+# pixels straddle the occluding surface or the silhouette, so the captured image mixes unrelated
+# content and cannot show the (still exact) correspondence.
+EDGE_MARGIN_PX = 3
 
 
 @dataclass(frozen=True)
@@ -53,8 +58,14 @@ def render(
     h, w = projected.shape[:2]
     grid = pixel_grid(h, w)
     fm = forward(scene, grid)
-    flow = np.where(fm.valid, fm.uv - grid, 0.0).astype(np.float32).T.reshape(h, w, 2)
-    valid = fm.valid.reshape(h, w)
+    reason = fm.reason.reshape(h, w).copy()
+    edges = ((reason & (OCCLUDED | MISS)) > 0).astype(np.uint8)
+    if edges.any():
+        k = 2 * EDGE_MARGIN_PX + 1
+        near = cv2.dilate(edges, np.ones((k, k), np.uint8)) > 0
+        reason[near & (reason == 0)] = NEAR_EDGE
+    valid = reason == 0
+    flow = np.where(valid.ravel(), fm.uv - grid, 0.0).astype(np.float32).T.reshape(h, w, 2)
 
     alpha = alpha_field((h, w), photometry["alpha"], photometry["alpha_var"], rng)
     rgba = np.dstack([projected, np.rint(alpha * 255).astype(np.uint8)])
@@ -63,7 +74,7 @@ def render(
     warped[lit] = sample_bilinear(rgba, xy[0, lit], xy[1, lit])
     warped = warped.reshape(h, w, 4)
     captured = composite(blend, warped[..., :3], warped[..., 3] / 255.0, background, photometry, rng)
-    return Rendered(captured, flow, valid, _stats(scene, fm.reason, flow, valid, lit))
+    return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, lit))
 
 
 def _stats(scene: Scene, reason: np.ndarray, flow: np.ndarray, valid: np.ndarray, lit: np.ndarray) -> dict:

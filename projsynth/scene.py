@@ -21,8 +21,8 @@ from .lens import Lens, in_frame, pixels_to_rays, project_points
 from .surface import Surface, intersect, single_crossing
 
 # Why a projected pixel is invalid (bit flags, recorded per sample as pixel counts).
-MISS, OUT_OF_FRAME, OCCLUDED, LENS = 1, 2, 4, 8
-REASONS = {"miss": MISS, "out_of_frame": OUT_OF_FRAME, "occluded": OCCLUDED, "lens": LENS}
+MISS, OUT_OF_FRAME, OCCLUDED, LENS, NEAR_EDGE = 1, 2, 4, 8, 16
+REASONS = {"miss": MISS, "out_of_frame": OUT_OF_FRAME, "occluded": OCCLUDED, "lens": LENS, "near_edge": NEAR_EDGE}
 PROJECTOR_FOOTPRINT = 0.5  # a projector pixel lights +-0.5 px around its centre
 _VISIBILITY_TOL = 1e-7  # relative distance: a hit this close to the point is the point itself
 

@@ -106,3 +106,18 @@ def test_generated_samples_align_best_at_the_ground_truth():
         assert _ncc(rgba, u, v, p) > best_shift, (s.id, s.params["transform"]["name"])
         checked += 1
     assert checked >= 50
+
+
+def test_valid_pixels_keep_a_margin_from_occlusion_and_silhouettes():
+    from projsynth.render import EDGE_MARGIN_PX
+
+    scene = _scene("sphere_convex", seed=3, severity=4)
+    out = render(np.full((H, W, 3), 128, np.uint8), np.zeros((H, W, 3), np.uint8), scene, IDENTITY, "paper",
+                 np.random.default_rng(0))  # fmt: skip
+    assert out.stats["invalid_pixels"]["near_edge"] > 0
+    from projsynth.scene import forward, pixel_grid
+
+    reason = forward(scene, pixel_grid(H, W)).reason.reshape(H, W)
+    edge = np.argwhere((reason & 5) > 0)  # MISS | OCCLUDED
+    for y, x in np.argwhere(out.valid)[::17]:
+        assert np.abs(edge - (y, x)).max(axis=1).min() > EDGE_MARGIN_PX
