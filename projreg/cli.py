@@ -158,5 +158,21 @@ def predict(
         typer.echo(f"{len(written)} flow file(s) written: {out}", err=True)
 
 
+@app.command()
+def compensate(
+    content: Annotated[Path, typer.Option(help="Desired camera view (image).")],
+    flow: Annotated[Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).")],
+    out: Annotated[Path, typer.Option(help="Projector image to write (PNG).")],
+    fill: Annotated[int, typer.Option(help="Grey level of projector pixels without correspondence.")] = 0,
+) -> None:
+    """Pre-warp content: the projector image that makes the camera see CONTENT undistorted."""
+    from .compensate import compensate_files
+
+    try:
+        compensate_files(content, flow, out, fill)
+    except ProjregError as e:
+        raise _fail(e) from None
+
+
 if __name__ == "__main__":
     app()

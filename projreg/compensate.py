@@ -1,0 +1,59 @@
+"""Pre-warp content for projection: what the projector must show so the camera sees ``content``.
+
+Convention: with the forward flow ``F`` (projected -> captured, on the projector grid), projector
+pixel ``p`` lands on camera pixel ``p + F(p)``. To make the camera see ``content`` (an image in the
+camera frame), the projector shows ``content`` sampled at ``p + F(p)``; no inversion of the flow is
+needed. Projector pixels whose flow is invalid (they miss the surface, are hidden from the camera, or
+land outside its frame) are set to ``fill``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from projsynth import ProjsynthError
+from projsynth.flowio import read_flow_exr
+from projsynth.sources import load_image
+
+from . import ProjregError
+from .predict import _write_png
+
+
+def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: int = 0) -> np.ndarray:
+    """The projector image that makes the camera see ``content``.
+
+    Args:
+        content: ``(Hc, Wc, 3)`` uint8 RGB desired camera view (any size: flow positions are scaled to it).
+        flow: ``(H, W, 2)`` float32 forward flow projected -> captured, in pixels of an ``H x W`` camera.
+        valid: ``(H, W)`` bool.
+        fill: value of projector pixels without a valid correspondence.
+
+    Returns:
+        ``(H, W, 3)`` uint8 projector image.
+    """
+    h, w = valid.shape
+    if flow.shape != (h, w, 2):
+        raise ProjregError(f"flow has shape {flow.shape}, expected {(h, w, 2)}")
+    ch, cw = content.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    # camera position in content pixels (pixel centres at integers in both frames)
+    mx = (xs + flow[..., 0] + 0.5) * (cw / w) - 0.5
+    my = (ys + flow[..., 1] + 0.5) * (ch / h) - 0.5
+    out = cv2.remap(content, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out[~valid] = fill
+    return out
+
+
+def compensate_files(content: Path, flow: Path, out: Path, fill: int = 0) -> None:
+    """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG)."""
+    try:
+        image = load_image(Path(content))
+        f, valid, _ = read_flow_exr(Path(flow))
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    if not 0 <= fill <= 255:
+        raise ProjregError(f"--fill: must be in 0..255, got {fill}")
+    _write_png(Path(out), compensate(image, f, valid, fill))
