@@ -29,15 +29,14 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
     g = draw(rng, ranges)
     px = width / REFERENCE_WIDTH  # pixel-valued ranges are given for 512-px-wide frames
     # Directions and signs are drawn after the ranges, always in this order.
-    sign = lambda: float(rng.choice([-1.0, 1.0]))  # noqa: E731
     extra = {
         "baseline_azimuth": float(rng.uniform(0, 2 * np.pi)),
         "aim_azimuth": float(rng.uniform(0, 2 * np.pi)),
-        "roll_sign": sign(),
+        "roll_sign": _sign(rng),
         "tilt_azimuth": float(rng.uniform(0, 2 * np.pi)),
         "axis_angle": float(rng.uniform(0, np.pi)),
         "principal_azimuth": float(rng.uniform(0, 2 * np.pi)),
-        "distortion_sign": sign(),
+        "distortion_sign": _sign(rng),
     }
     f = 0.5 * width / np.tan(np.radians(g["fov_deg"]) / 2)
     jitter = g["principal_jitter_px"] * px
@@ -66,6 +65,10 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
     )
     surface = Surface(_kind(family), rot, target, _shape_params(family, g, rng, extra))
     return Scene(projector, camera, R, C, surface), {**g, **extra}
+
+
+def _sign(rng: np.random.Generator) -> float:
+    return float(rng.choice([-1.0, 1.0]))
 
 
 def _kind(family: str) -> str:

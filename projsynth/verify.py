@@ -13,7 +13,7 @@ from .dataset import Sample
 from .flowio import decode_flow_exr
 from .shards import file_sha256, load_manifest, open_shard, shard_name
 
-BUCKETS = (("s0-10", 0.0, 10.0), ("s10-40", 10.0, 40.0), ("s40+", 40.0, np.inf))
+BUCKETS = ("s0-10", "s10-40", "s40+")
 
 
 def bucket_of(mag: np.ndarray) -> list[np.ndarray]:
@@ -132,6 +132,6 @@ def _summary(r: dict) -> dict:
     return {
         "samples": r["samples"],
         "valid_share": round(r["valid"] / max(r["pixels"], 1), 4),
-        "bucket_share": {name: round(c / valid, 4) for (name, _, _), c in zip(BUCKETS, r["buckets"], strict=True)},
+        "bucket_share": {name: round(c / valid, 4) for name, c in zip(BUCKETS, r["buckets"], strict=True)},
         "histogram": r["hist"],
     }
