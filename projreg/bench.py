@@ -33,7 +33,7 @@ from projsynth.shards import ShardReader
 
 from . import ProjregError
 from .baselines import make_baseline
-from .evaluate import predict_flow
+from .evaluate import predict_flow, sample_indices
 from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
 from .predict import default_device, load_model, reference_checkpoint, write_atomic
 
@@ -64,20 +64,6 @@ def model_method(path: Path, device: torch.device, name: str | None = None) -> M
 def baseline_method(name: str, equalize: bool = False) -> Method:
     """A classical baseline by registry name (``projreg.baselines.BASELINES``)."""
     return Method(name, "baseline", make_baseline(name, equalize).predict)
-
-
-def sample_indices(n: int, limit: int | None) -> list[int]:
-    """All of ``range(n)``, or ``limit`` indices spread evenly over it (first and last included).
-
-    Example:
-        >>> sample_indices(16, 4)
-        [0, 5, 10, 15]
-    """
-    if limit is not None and limit < 1:
-        raise ProjregError(f"--limit must be >= 1, got {limit}")
-    if limit is None or limit >= n:
-        return list(range(n))
-    return [int(i) for i in np.linspace(0, n - 1, limit).astype(int)]
 
 
 def sample_groups(params: dict) -> dict[str, str]:

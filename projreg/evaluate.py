@@ -5,8 +5,23 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from . import ProjregError
 from .data import ShardDataset
 from .metrics import EPEAccumulator
+
+
+def sample_indices(n: int, limit: int | None) -> list[int]:
+    """All of ``range(n)``, or ``limit`` indices spread evenly over it (first and last included).
+
+    Example:
+        >>> sample_indices(16, 4)
+        [0, 5, 10, 15]
+    """
+    if limit is not None and limit < 1:
+        raise ProjregError(f"--limit must be >= 1, got {limit}")
+    if limit is None or limit >= n:
+        return list(range(n))
+    return [int(i) for i in np.linspace(0, n - 1, limit).astype(int)]
 
 
 @torch.no_grad()
@@ -19,12 +34,11 @@ def predict_flow(model: torch.nn.Module, img0: np.ndarray, img1: np.ndarray, dev
 
 @torch.no_grad()
 def evaluate(model: torch.nn.Module, dataset: ShardDataset, *, device: torch.device, limit: int | None = None) -> dict:
-    """Pooled metrics of the last prediction over the first ``limit`` samples (all if None)."""
+    """Pooled metrics of the last prediction over ``limit`` samples spread evenly (all if None)."""
     model.eval()
     acc = EPEAccumulator()
-    n = len(dataset) if limit is None else min(limit, len(dataset))
-    for i in np.linspace(0, len(dataset) - 1, n).astype(int) if n < len(dataset) else range(n):
-        s = dataset[int(i)]
+    for i in sample_indices(len(dataset), limit):
+        s = dataset[i]
         pred = model(s["img0"][None].to(device), s["img1"][None].to(device))[-1][0]
         acc.add(pred.permute(1, 2, 0).float().cpu().numpy(), s["flow"].permute(1, 2, 0).numpy(), s["valid"].numpy())
     return acc.result()
