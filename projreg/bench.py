@@ -35,7 +35,7 @@ from . import ProjregError
 from .baselines import make_baseline
 from .evaluate import predict_flow, sample_indices
 from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
-from .predict import default_device, load_model, reference_checkpoint, write_atomic
+from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint, write_atomic
 
 DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
 GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
@@ -112,11 +112,13 @@ def resolve_methods(
     methods: list[Method] = []
     if reference is not None:
         methods.append(model_method(reference, device, "reference"))
-    paths = [Path(p) for p in models]
+    paths = [resolve_checkpoint(p) for p in models]
     for i, path in enumerate(paths):
         if path.resolve() in {q.resolve() for q in paths[:i]}:
             raise ProjregError(f"--model {path}: given twice")
-    for path in paths:
+    for spec, path in zip(models, paths, strict=True):
+        if str(spec) == "reference" and path == reference_checkpoint():
+            reference = path
         taken = {m.name for m in methods} | set(baselines)
         methods.append(model_method(path, device, path.stem if path.stem not in taken else str(path.with_suffix(""))))
     methods += [baseline_method(name, equalize) for name in baselines]

@@ -57,6 +57,8 @@ def train(
     log_every: Annotated[int, typer.Option(help="Log a metrics row every N steps.")] = 10,
     amp: Annotated[bool, typer.Option(help="bf16 autocast (CUDA only).")] = False,
     compile: Annotated[bool, typer.Option("--compile", help="torch.compile the model.")] = False,
+    activation_checkpointing: Annotated[bool, typer.Option(help="Recompute attention in backward: less memory, "
+                                                             "~15% slower steps.")] = True,
     resume: Annotated[bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -69,7 +71,8 @@ def train(
                           use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
                           warmup_steps=warmup_steps, batch_size=batch_size, lr=lr, seed=seed,
                           workers=workers, crop=_parse_crop(crop), val_every=val_every, ckpt_every=ckpt_every,
-                          log_every=log_every, amp=amp, compile=compile)  # fmt: skip
+                          log_every=log_every, amp=amp, compile=compile,
+                          activation_checkpointing=activation_checkpointing)  # fmt: skip
         with tqdm(total=steps, desc="train", unit="step", disable=quiet, file=sys.stderr, leave=False) as bar:
             def progress(step: int, loss: float) -> None:
                 bar.n = step
@@ -85,9 +88,25 @@ def train(
 
 
 @app.command()
+def export(
+    checkpoint: Annotated[Path, typer.Option(help="Checkpoint written by `projreg train` (last.pt or best.pt).")],
+    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.")],
+) -> None:
+    """Strip a training checkpoint to weights + config + provenance (what bench/predict need)."""
+    from .train import export_checkpoint
+
+    try:
+        slim = export_checkpoint(checkpoint, out)
+    except ProjregError as e:
+        raise _fail(e) from None
+    typer.echo(f"{out}: step {slim.get('step')}, {out.stat().st_size / 2**20:.2f} MiB", err=True)
+
+
+@app.command()
 def bench(
     data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).")],
-    model: Annotated[list[Path] | None, typer.Option(help="Checkpoint (repeatable); default: the reference.")] = None,
+    model: Annotated[list[Path] | None, typer.Option(help="Checkpoint, or `reference` (repeatable); "
+                                                     "default: the reference.")] = None,
     baselines: Annotated[str | None, typer.Option(help="Comma list, or none (default: dis-fast,dis-medium,"
                                                       "farneback,sift-ransac).", show_default=False)] = None,
     equalize: Annotated[bool, typer.Option("--equalize", help="Equalise histograms for the baselines.")] = False,
@@ -137,7 +156,8 @@ def predict(
     captured: Annotated[Path, typer.Option(help="Captured image, or a folder (same relative names).")],
     out: Annotated[Path, typer.Option(help="Flow EXR file, or output folder (folder mode).")],
     viz: Annotated[Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).")] = None,
-    model: Annotated[Path | None, typer.Option(help="Checkpoint; default: the shipped reference model.")] = None,
+    model: Annotated[Path | None, typer.Option(help="Checkpoint, or `reference`; default: the shipped "
+                                                    "reference model.")] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:

@@ -37,6 +37,17 @@ def reference_checkpoint() -> Path | None:
     return Path(str(ref)) if ref.is_file() else None
 
 
+def resolve_checkpoint(spec: Path | str | None) -> Path:
+    """``spec`` as a checkpoint path; None or the name ``reference`` (when no such file exists) is the
+    shipped reference model. Raises ProjregError when that is asked for and none ships."""
+    if spec is not None and not (str(spec) == "reference" and not Path(spec).exists()):
+        return Path(spec)
+    ref = reference_checkpoint()
+    if ref is None:
+        raise ProjregError(NO_REFERENCE)
+    return ref
+
+
 def default_device() -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
@@ -156,7 +167,7 @@ def predict(
         projected, captured: two image files, or two folders (pairs by identical relative names).
         out: the EXR file (file mode) or the output folder (folder mode).
         viz: colour PNG file (file mode) or folder (folder mode); None writes none.
-        model: a ``projreg train`` checkpoint; None uses the shipped reference model.
+        model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model.
         max_side: longest side the network sees; larger pairs are resized (see ``predict_resized``).
         device: default CUDA when available, else CPU.
         progress: called ``(done, total)`` after each pair.
@@ -168,10 +179,7 @@ def predict(
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
     jobs = plan_jobs(projected, captured, out, viz)
     device = device or default_device()
-    ckpt = model if model is not None else reference_checkpoint()
-    if ckpt is None:
-        raise ProjregError(NO_REFERENCE)
-    net = load_model(ckpt, device)
+    net = load_model(resolve_checkpoint(model), device)
     for k, job in enumerate(jobs):
         img0, img1 = _load(job.projected), _load(job.captured)
         if img0.shape != img1.shape:

@@ -45,7 +45,8 @@ def gen(
     pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
     size: Annotated[str, typer.Option(help="Image size HxW.")] = "384x512",
     seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
-    split: Annotated[str, typer.Option(help="train, val or test (disjoint source images).")] = "train",
+    split: Annotated[str, typer.Option(help="train, val or test (disjoint source images), "
+                                                "or all (every image: a held-out folder).")] = "train",
     transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).")] = None,
     table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
     shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,

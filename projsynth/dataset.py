@@ -22,10 +22,9 @@ from .photometric import BLENDS
 from .procedural import THEMES, render_procedural
 from .render import render
 from .rig import make_scene
-from .sources import FolderSource, SourceImage, fit_to_size, load_image
+from .sources import SPLITS, FolderSource, SourceImage, fit_to_size, load_image
 from .transforms import TransformTable, draw, load_table, parse_selection
 
-SPLITS = ("train", "val", "test")
 ROLES = ("natural_on_generated", "generated_on_natural")
 KINDS = ("natural", "generated")
 MIN_SIZE, MAX_SIZE = 32, 4096

@@ -22,7 +22,8 @@ from .procedural import KINDS, THEMES
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
 MIN_SOURCE_SIDE = 32
-SPLITS = ("train", "val", "test")
+# "all" takes every image: a folder held out from training, used whole as a test set
+SPLITS = ("train", "val", "test", "all")
 # Bundled with scikit-image (no download) and checked to be RGB photographs >= 300 px. Left out:
 # ``cat`` (same picture as ``chelsea``), ``hubble_deep_field`` and ``retina`` (72 % / 23 % near-black).
 SKIMAGE_SAMPLES = ("astronaut", "chelsea", "coffee", "immunohistochemistry", "rocket")
@@ -156,7 +157,7 @@ def split_of(relpath: str, seed: int) -> str:
 def _for_split(images: tuple[SourceImage, ...], split: str, seed: int) -> list[SourceImage]:
     if split not in SPLITS:
         raise ProjsynthError(f"split {split!r} is unknown; use one of {', '.join(SPLITS)}")
-    chosen = [im for im in images if split_of(im.name, seed) == split]
+    chosen = [im for im in images if split == "all" or split_of(im.name, seed) == split]
     order = np.random.default_rng([seed, SPLITS.index(split)]).permutation(len(chosen))
     return [chosen[i] for i in order]
 

@@ -171,6 +171,7 @@ class FeatureTransformer(nn.Module):
     def __init__(self, channels: int, num_layers: int, ffn_dim_expansion: int, attn_splits: int) -> None:
         super().__init__()
         self.attn_splits = attn_splits
+        self.checkpointing = True  # recompute each layer pair's attention in backward (set by training)
         self.self_layers = nn.ModuleList(
             [AttentionLayer(channels, ffn_dim_expansion, with_ffn=False) for _ in range(num_layers)]
         )
@@ -193,7 +194,8 @@ class FeatureTransformer(nn.Module):
                 return cross_layer(x, swapped, h, w, s, shifted)  # [2B, H*W, C]
 
             # training keeps only each layer pair's input and recomputes its attention maps in backward:
-            # small at batch 8, 384x512 peaks at 8.8 GiB without this
-            x = checkpoint(pair, x, use_reentrant=False) if self.training and torch.is_grad_enabled() else pair(x)
+            # small at batch 8, 384x512 peaks at 8.8 GiB without this (costs ~15% of a CPU step)
+            recompute = self.checkpointing and self.training and torch.is_grad_enabled()
+            x = checkpoint(pair, x, use_reentrant=False) if recompute else pair(x)
         x = x.transpose(1, 2).reshape(2 * b, c, h, w)  # [2B, C, H, W]
         return x[:b], x[b:]

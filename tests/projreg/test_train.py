@@ -7,8 +7,10 @@ import time
 
 import pytest
 import torch
+from typer.testing import CliRunner
 
 from projreg import ProjregError
+from projreg.cli import app
 from projreg.train import TrainConfig, load_checkpoint, train
 
 
@@ -138,3 +140,34 @@ def test_resume_refuses_a_different_crop(tiny_train, tmp_path):
     train(_cfg(tiny_train, tmp_path / "r", steps=2))
     with pytest.raises(ProjregError, match="--crop"):
         train(_cfg(tiny_train, tmp_path / "r", steps=4, crop=(32, 48)), resume=True)
+
+
+def test_activation_checkpointing_changes_memory_not_results(tiny_train, tmp_path):
+    """Recomputing attention in backward is an exact trade: same losses and weights after 4 steps."""
+    runs = {}
+    for flag in (True, False):
+        train(_cfg(tiny_train, tmp_path / str(flag), steps=4, activation_checkpointing=flag))
+        runs[flag] = (_losses(tmp_path / str(flag)), load_checkpoint(tmp_path / str(flag) / "checkpoints" / "last.pt"))
+    assert runs[True][0] == pytest.approx(runs[False][0], abs=1e-5)
+    for name, w in runs[True][1]["model"].items():
+        torch.testing.assert_close(w, runs[False][1]["model"][name], atol=1e-5, rtol=1e-4, msg=name)
+
+
+def test_export_keeps_weights_and_provenance_and_drops_optimizer(tiny_ckpt, tmp_path):
+    out = tmp_path / "deploy.pt"
+    result = CliRunner().invoke(app, ["export", "--checkpoint", str(tiny_ckpt), "--out", str(out)])
+    assert result.exit_code == 0, result.stderr
+    full, slim = load_checkpoint(tiny_ckpt), load_checkpoint(out)
+    assert set(slim) == {"model", "model_config", "step", "best_epe", "train_config", "version"}
+    assert slim["step"] == full["step"] and slim["model_config"] == full["model_config"]
+    for name, w in full["model"].items():
+        assert torch.equal(slim["model"][name], w), name
+    assert out.stat().st_size < 0.5 * tiny_ckpt.stat().st_size  # AdamW's two moments are gone
+
+
+def test_export_of_a_non_checkpoint_is_one_line(tmp_path, one_line_error):
+    bad = tmp_path / "notes.pt"
+    bad.write_bytes(b"not a checkpoint")
+    result = CliRunner().invoke(app, ["export", "--checkpoint", str(bad), "--out", str(tmp_path / "x.pt")])
+    one_line_error(result, bad)
+    assert not (tmp_path / "x.pt").exists()

@@ -244,9 +244,11 @@ def make_tree(root: Path, n: int = 40) -> None:
 def test_folder_source_splits_are_disjoint_complete_and_shuffled(tmp_path):
     make_tree(tmp_path)
     source = FolderSource(tmp_path, "natural", "--natural")
+    disjoint = ("train", "val", "test")
     parts = {s: source.files_for_split(s, seed=5) for s in SPLITS}
-    names = [im.name for s in SPLITS for im in parts[s]]
+    names = [im.name for s in disjoint for im in parts[s]]
     assert sorted(names) == sorted(im.name for im in source.images) and len(set(names)) == 40
+    assert sorted(im.name for im in parts["all"]) == sorted(names)  # a held-out folder, used whole
     assert [im.name for im in parts["train"]] != sorted(im.name for im in parts["train"])
     again = FolderSource(tmp_path, "natural", "--natural").files_for_split("train", seed=5)
     assert again == parts["train"]
@@ -309,7 +311,7 @@ def test_skimage_samples_load_offline():
         img = source.load(item, (96, 128))
         assert img.shape == (96, 128, 3) and img.dtype == np.uint8
         assert img.std() > 15 and np.ptp(img.reshape(-1, 3).mean(0)) > 2  # textured, in colour
-    assert sum(len(source.files_for_split(s, 0)) for s in SPLITS) == len(SKIMAGE_SAMPLES)
+    assert sum(len(source.files_for_split(s, 0)) for s in ("train", "val", "test")) == len(SKIMAGE_SAMPLES)
 
 
 def test_skimage_missing_is_a_clear_error(monkeypatch):
