@@ -32,7 +32,7 @@ demo: setup
 	$(BIN)/projsynth preview $(DEMO)/train --out $(DEMO)/preview.png --count 8
 	$(BIN)/projreg train --data $(DEMO)/train --val $(DEMO)/test --out $(DEMO)/run --steps 60 --batch-size 2 \
 		--crop 128x160 --val-every 60 --workers 2 $(if $(wildcard $(DEMO)/run/checkpoints/last.pt),--resume,)
-	$(BIN)/projreg bench --data $(DEMO)/test --model $(DEMO)/run/checkpoints/last.pt --limit 16 \
+	$(BIN)/projreg bench --data $(DEMO)/test --model $(DEMO)/run/checkpoints/last.pt --model reference --limit 16 \
 		--json $(DEMO)/bench.json --markdown $(DEMO)/bench.md
 	@echo "demo: data in $(DEMO)/, contact sheet $(DEMO)/preview.png, run $(DEMO)/run, table $(DEMO)/bench.md"
 

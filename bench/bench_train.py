@@ -34,6 +34,7 @@ def main() -> None:
     ap.add_argument("--size", default="384x512")
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--no-activation-checkpointing", action="store_true", help="as `projreg train`'s option")
     args = ap.parse_args()
     h, w = parse_size(args.size)
     torch.manual_seed(0)
@@ -52,6 +53,7 @@ def main() -> None:
         load_rate = n * args.batch / (time.perf_counter() - t)
 
         model = build_model(args.model)
+        model.transformer.checkpointing = not args.no_activation_checkpointing
         opt = torch.optim.AdamW(model.parameters(), lr=4e-4)
         batch = next(it)
         times = []
