@@ -45,10 +45,10 @@ REF ?= build/reference
 reference-model: setup
 	$(BIN)/projsynth gen --out $(REF)/train --split train --pairs 12 --seed 1 --workers 2 --quiet
 	$(BIN)/projsynth gen --out $(REF)/val --split val --pairs 1 --seed 1 --workers 2 --quiet
-	$(BIN)/projreg train --data $(REF)/train --val $(REF)/val --out $(REF)/run --model small --steps 3000 \
+	$(BIN)/projreg train --data $(REF)/train --val $(REF)/val --out $(REF)/run --model small --steps 2200 \
 		--schedule-steps 3000 --warmup-steps 100 --batch-size 6 --crop 192x256 --val-every 500 --workers 1 \
 		--no-activation-checkpointing --seed 0 --quiet $(if $(wildcard $(REF)/run/checkpoints/last.pt),--resume,)
-	$(BIN)/projreg export --checkpoint $(REF)/run/checkpoints/best.pt --out projreg/weights/reference.pt
+	$(BIN)/projreg export --checkpoint $(REF)/run/checkpoints/last.pt --out projreg/weights/reference.pt
 
 BASELINES := dis-fast,dis-medium,farneback,sift-ransac
 # 32 transforms: every (family, severity) once, photometric conditions in rotation

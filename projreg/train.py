@@ -89,9 +89,10 @@ def _atomic_save(obj: dict, path: Path) -> None:
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except OSError as e:
+    except (OSError, RuntimeError) as e:  # torch.save reports a missing or unwritable folder as RuntimeError
         tmp.unlink(missing_ok=True)
-        raise ProjregError(f"{path}: cannot write checkpoint ({e.strerror or e}); free space or fix permissions, "
+        reason = getattr(e, "strerror", None) or e
+        raise ProjregError(f"{path}: cannot write checkpoint ({reason}); free space or fix permissions, "
                            "then --resume") from e  # fmt: skip
 
 
@@ -131,6 +132,10 @@ def export_checkpoint(src: Path, dst: Path) -> dict:
         raise ProjregError(f"{src}: not a projreg checkpoint (no model / model_config); pass one from `projreg train`")
     slim = {k: ckpt[k] for k in ("model", "model_config", "step", "best_epe", "train_config", "version") if k in ckpt}
     slim["model"] = {k: v.detach().clone().contiguous() for k, v in slim["model"].items()}  # no shared storage
+    try:
+        Path(dst).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ProjregError(f"--out {dst}: cannot create its folder ({e.strerror or e})") from e
     _atomic_save(slim, Path(dst))
     return slim
 
