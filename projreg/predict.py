@@ -26,7 +26,7 @@ from projsynth.sources import list_images, load_image
 from . import ProjregError
 from .evaluate import predict_flow
 from .model.net import SSJMFlow
-from .train import load_checkpoint, model_from_checkpoint
+from .train import load_checkpoint, model_from_checkpoint, require_model
 
 NO_REFERENCE = "no shipped reference model yet; pass --model CKPT (train one with `projreg train`)"
 
@@ -62,8 +62,7 @@ def load_model(path: Path, device: torch.device) -> SSJMFlow:
             raise
         raise ProjregError(f"{path}: not a readable checkpoint ({type(cause).__name__}); "
                            "pass a file written by `projreg train`") from cause  # fmt: skip
-    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
-        raise ProjregError(f"{path}: not a projreg checkpoint (no model / model_config); pass one from `projreg train`")
+    require_model(ckpt, path)
     try:
         model = model_from_checkpoint(ckpt)
     except (TypeError, ValueError, RuntimeError, ProjregError) as e:

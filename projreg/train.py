@@ -82,7 +82,7 @@ class TrainConfig:
                 raise ProjregError(msg)
 
 
-def _atomic_save(obj: dict, path: Path) -> None:
+def _atomic_save(obj: dict, path: Path, then: str = "then --resume") -> None:
     tmp = path.with_name(path.name + ".tmp")
     try:
         torch.save(obj, tmp)
@@ -93,7 +93,7 @@ def _atomic_save(obj: dict, path: Path) -> None:
         tmp.unlink(missing_ok=True)
         reason = getattr(e, "strerror", None) or e
         raise ProjregError(f"{path}: cannot write checkpoint ({reason}); free space or fix permissions, "
-                           "then --resume") from e  # fmt: skip
+                           f"{then}") from e  # fmt: skip
 
 
 def _next_batch(batches) -> dict:
@@ -127,17 +127,22 @@ def export_checkpoint(src: Path, dst: Path) -> dict:
     Returns:
         The exported dictionary.
     """
-    ckpt = load_checkpoint(Path(src))
-    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
-        raise ProjregError(f"{src}: not a projreg checkpoint (no model / model_config); pass one from `projreg train`")
+    ckpt = require_model(load_checkpoint(Path(src)), src)
     slim = {k: ckpt[k] for k in ("model", "model_config", "step", "best_epe", "train_config", "version") if k in ckpt}
     slim["model"] = {k: v.detach().clone().contiguous() for k, v in slim["model"].items()}  # no shared storage
     try:
         Path(dst).parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ProjregError(f"--out {dst}: cannot create its folder ({e.strerror or e})") from e
-    _atomic_save(slim, Path(dst))
+    _atomic_save(slim, Path(dst), then="then export again")
     return slim
+
+
+def require_model(ckpt, path: Path) -> dict:
+    """``ckpt`` if it holds a model (``model`` and ``model_config``), else a ProjregError naming ``path``."""
+    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
+        raise ProjregError(f"{path}: not a projreg checkpoint (no model / model_config); pass one from `projreg train`")
+    return ckpt
 
 
 def model_from_checkpoint(ckpt: dict) -> SSJMFlow:
