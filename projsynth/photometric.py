@@ -18,13 +18,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .jit import jit
+
 BLENDS = ("paper", "physical")
 
 
 def composite(
     blend: str,
     warped: np.ndarray,
-    alpha: np.ndarray,
     background: np.ndarray,
     p: dict[str, float],
     rng: np.random.Generator,
@@ -33,8 +34,8 @@ def composite(
 
     Args:
         blend: ``"paper"`` or ``"physical"``.
-        warped: ``(H, W, 3)`` float32 projected image sampled in the camera frame, 0-255 (0 unlit).
-        alpha: ``(H, W)`` float32 in [0, 1], the warped transparency (0 where unlit).
+        warped: ``(H, W, 4)`` float32 projected image and its transparency, sampled in the camera frame,
+            0-255 (0 where unlit); the paper's ``a`` is channel 3 / 255.
         background: ``(H, W, 3)`` uint8 scene image in the camera frame.
         p: drawn photometric parameters (see ``transforms._CONDITIONS``).
         rng: the sample's generator (noise).
@@ -42,18 +43,35 @@ def composite(
     Returns:
         ``(H, W, 3)`` uint8 captured image.
     """
-    bg = background.astype(np.float32)
-    a = alpha[..., None]
     if blend == "paper":
-        w = np.float32(p["beta"]) * a
-        fg = np.float32(p["contrast"]) * warped + np.float32(p["brightness"])
-        out = w * fg + (1 - w) * np.float32(p["gamma"]) * bg
-        out += _gaussian(rng, out.shape, p["noise_mu"], p["noise_sigma"])
-    elif blend == "physical":
-        out = _physical(warped, a, bg, p, rng)
-    else:
+        noise = rng.standard_normal(background.shape, dtype=np.float32)  # scaled inside the kernel
+        return _paper(np.ascontiguousarray(warped, np.float32), np.ascontiguousarray(background), noise,
+                      *(float(p[k]) for k in _PAPER))  # fmt: skip
+    if blend != "physical":
         raise ValueError(f"unknown blend {blend!r}")
+    out = _physical(warped[..., :3], warped[..., 3:] / 255.0, background.astype(np.float32), p, rng)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+_PAPER = ("beta", "contrast", "brightness", "gamma", "noise_mu", "noise_sigma")
+
+
+@jit
+def _paper(warped, background, noise, beta, contrast, brightness, gamma, mu, sigma):  # noqa: ANN001, ANN202
+    """The paper's blend, pixel by pixel in float32, plus ``mu + sigma * noise``, rounded and clipped to uint8."""
+    h, w = background.shape[0], background.shape[1]
+    out = np.empty((h, w, 3), np.uint8)
+    beta, contrast, brightness = np.float32(beta), np.float32(contrast), np.float32(brightness)
+    gamma, mu, sigma = np.float32(gamma), np.float32(mu), np.float32(sigma)
+    one, full = np.float32(1.0), np.float32(255.0)
+    for y in range(h):
+        for x in range(w):
+            wt = beta * (warped[y, x, 3] / full)
+            for c in range(3):
+                fg = contrast * warped[y, x, c] + brightness
+                v = wt * fg + (one - wt) * gamma * np.float32(background[y, x, c]) + (noise[y, x, c] * sigma + mu)
+                out[y, x, c] = min(max(np.rint(v), 0.0), 255.0)
+    return out
 
 
 def _gaussian(rng: np.random.Generator, shape: tuple, mu: float, sigma: float) -> np.ndarray:
@@ -89,23 +107,40 @@ def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
     Returns:
         ``(N, 4)`` float32.
     """
-    h, w, c = image.shape
-    if c != 4:
-        raise ValueError("sample_bilinear expects 4 channels (RGB + alpha)")
-    x = np.clip(x, 0, w - 1)
-    y = np.clip(y, 0, h - 1)
-    x0 = np.minimum(x.astype(np.int32), w - 2)  # x >= 0, so truncation is floor
-    y0 = np.minimum(y.astype(np.int32), h - 2)
-    fx = (x - x0).astype(np.float32)[:, None]
-    fy = (y - y0).astype(np.float32)[:, None]
-    packed = np.ascontiguousarray(image).view(np.uint32).reshape(h * w)  # one gather per neighbour
-    i = y0 * w + x0
+    image = _rgba(image)
+    x = np.ascontiguousarray(x, np.float64).ravel()
+    y = np.ascontiguousarray(y, np.float64).ravel()
+    return _sample_where(image, x, y, np.ones(x.size, np.bool_))
 
-    def tap(idx: np.ndarray) -> np.ndarray:
-        return packed[idx].view(np.uint8).reshape(-1, 4).astype(np.float32)
 
-    top = tap(i)
-    top += (tap(i + 1) - top) * fx
-    bottom = tap(i + w)
-    bottom += (tap(i + w + 1) - bottom) * fx
-    return top + (bottom - top) * fy
+def sample_where(image: np.ndarray, xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """:func:`sample_bilinear` at ``xy`` ``(2, N)`` where ``mask`` ``(N,)`` is true, 0 elsewhere."""
+    xy = np.ascontiguousarray(xy, np.float64)
+    return _sample_where(_rgba(image), xy[0], xy[1], np.ascontiguousarray(mask, np.bool_))
+
+
+def _rgba(image: np.ndarray) -> np.ndarray:
+    if image.ndim != 3 or image.shape[2] != 4 or image.dtype != np.uint8:
+        raise ValueError(f"sampling expects a (H, W, 4) uint8 image (RGB + alpha), got {image.dtype} {image.shape}")
+    if image.shape[0] < 2 or image.shape[1] < 2:
+        raise ValueError(f"sampling needs at least 2 x 2 pixels, got {image.shape[:2]}")
+    return np.ascontiguousarray(image)
+
+
+@jit
+def _sample_where(image, xs, ys, mask):  # noqa: ANN001, ANN202
+    h, w = image.shape[0], image.shape[1]
+    out = np.zeros((xs.size, 4), np.float32)
+    for i in range(xs.size):
+        if not mask[i]:
+            continue
+        x, y = min(max(xs[i], 0.0), w - 1.0), min(max(ys[i], 0.0), h - 1.0)
+        x0, y0 = min(int(x), w - 2), min(int(y), h - 2)  # x >= 0, so truncation is floor
+        fx, fy = np.float32(x - x0), np.float32(y - y0)
+        for c in range(4):
+            top = np.float32(image[y0, x0, c])
+            top += (np.float32(image[y0, x0 + 1, c]) - top) * fx
+            bottom = np.float32(image[y0 + 1, x0, c])
+            bottom += (np.float32(image[y0 + 1, x0 + 1, c]) - bottom) * fx
+            out[i, c] = top + (bottom - top) * fy
+    return out

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .photometric import composite, sample_bilinear
+from .jit import jit
+from .photometric import composite, sample_where
 from .scene import MISS, NEAR_EDGE, OCCLUDED, REASONS, Scene, backward, forward, pixel_grid
 
 # Valid pixels this close (projector px) to an occluded or missed one are dropped: there the camera's
@@ -65,16 +66,25 @@ def render(
         near = cv2.dilate(edges, np.ones((k, k), np.uint8)) > 0
         reason[near & (reason == 0)] = NEAR_EDGE
     valid = reason == 0
-    flow = np.where(valid.ravel(), fm.uv - grid, 0.0).astype(np.float32).T.reshape(h, w, 2)
+    flow = _flow(fm.uv, valid.ravel(), h, w)
 
     alpha = alpha_field((h, w), photometry["alpha"], photometry["alpha_var"], rng)
     rgba = np.dstack([projected, np.rint(alpha * 255).astype(np.uint8)])
     xy, lit = backward(scene, grid)
-    warped = np.zeros((h * w, 4), np.float32)
-    warped[lit] = sample_bilinear(rgba, xy[0, lit], xy[1, lit])
-    warped = warped.reshape(h, w, 4)
-    captured = composite(blend, warped[..., :3], warped[..., 3] / 255.0, background, photometry, rng)
+    warped = sample_where(rgba, xy, lit).reshape(h, w, 4)
+    captured = composite(blend, warped, background, photometry, rng)
     return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, lit))
+
+
+@jit
+def _flow(uv, valid, h, w):  # noqa: ANN001, ANN202
+    """``(H, W, 2)`` float32 flow ``uv - p`` on the pixel grid, 0 where not valid."""
+    flow = np.zeros((h, w, 2), np.float32)
+    for i in range(h * w):
+        if valid[i]:
+            y, x = i // w, i % w
+            flow[y, x, 0], flow[y, x, 1] = uv[0, i] - x, uv[1, i] - y
+    return flow
 
 
 def _stats(scene: Scene, reason: np.ndarray, flow: np.ndarray, valid: np.ndarray, lit: np.ndarray) -> dict:

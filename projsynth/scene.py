@@ -14,11 +14,13 @@ surface point is occluded; a seen point the projector's ray meets only after ano
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from .lens import Lens, in_frame, pixels_to_rays, project_points
-from .surface import Surface, intersect, single_crossing
+from .jit import jit
+from .lens import Lens, in_frame1, project1, ray1
+from .surface import Surface, hit1, never_hidden1, single1
 
 # Why a projected pixel is invalid (bit flags, recorded per sample as pixel counts).
 MISS, OUT_OF_FRAME, OCCLUDED, LENS, NEAR_EDGE = 1, 2, 4, 8, 16
@@ -63,17 +65,9 @@ def forward(scene: Scene, pts: np.ndarray) -> ForwardMap:
     ``pts[:, i]``. A point is valid when its projector ray hits the surface, the camera sees that
     point first (no occlusion), and it lands in the camera frame ``[0, W-1] x [0, H-1]``.
     """
-    dirs, lens_ok = pixels_to_rays(scene.projector, pts[0], pts[1])
-    t, hit = intersect(scene.surface, np.zeros((3, 1)), dirs)
-    X = dirs * np.where(hit, t, 0.0)
-    u, v, cam_ok = project_points(scene.camera, scene.R @ (X - scene.C[:, None]))
-    frame_ok = in_frame(scene.camera, u, v)
-    seen = _visible_from(scene.surface, scene.C, X, hit & lens_ok & cam_ok & frame_ok)
-    reason = np.where(lens_ok & cam_ok, 0, LENS) | np.where(hit, 0, MISS)
-    reason |= np.where(hit & ~frame_ok, OUT_OF_FRAME, 0)
-    reason |= np.where(hit & lens_ok & cam_ok & frame_ok & ~seen, OCCLUDED, 0)
-    reason = reason.astype(np.uint8)
-    return ForwardMap(np.stack([u, v]), reason == 0, reason)
+    uv, reason = _forward_many(scene.projector.packed, scene.camera.packed, *_pose(scene), *scene.surface.packed,
+                               _points(pts))  # fmt: skip
+    return ForwardMap(uv, reason == 0, reason)
 
 
 def backward(scene: Scene, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,33 +78,102 @@ def backward(scene: Scene, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         surface point lit by the projector (inside its pixels' footprint ``[-0.5, W-0.5] x
         [-0.5, H-0.5]``, not in shadow).
     """
-    dirs_cam, lens_ok = pixels_to_rays(scene.camera, pts[0], pts[1])
-    dirs = scene.R.T @ dirs_cam
-    t, hit = intersect(scene.surface, scene.C[:, None], dirs)
-    X = scene.C[:, None] + dirs * np.where(hit, t, 0.0)
-    u, v, proj_ok = project_points(scene.projector, X)
-    lit = hit & lens_ok & proj_ok & in_frame(scene.projector, u, v, margin=PROJECTOR_FOOTPRINT)
-    lit &= _visible_from(scene.surface, np.zeros(3), X, lit)
-    return np.stack([u, v]), lit
+    return _backward_many(scene.camera.packed, scene.projector.packed, *_pose(scene), *scene.surface.packed,
+                          _points(pts))  # fmt: skip
 
 
-def _visible_from(surface: Surface, eye: np.ndarray, X: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """True where the first surface hit from ``eye`` towards ``X`` ``(3, N)`` is ``X`` itself."""
-    ray = X - eye[:, None]
-    dist = np.sqrt((ray * ray).sum(0))
-    dirs = ray / np.where(dist > 0, dist, 1.0)
-    seen = mask & single_crossing(surface, eye[:, None], dirs)
-    idx = np.nonzero(mask & ~seen)[0]
-    if idx.size:
-        t, hit = intersect(surface, eye[:, None], dirs[:, idx])
-        seen[idx] = hit & (t > dist[idx] * (1 - _VISIBILITY_TOL))
-    return seen
+def _pose(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    return np.ascontiguousarray(scene.R, np.float64), np.ascontiguousarray(scene.C, np.float64)
 
 
+def _points(pts: np.ndarray) -> np.ndarray:
+    pts = np.ascontiguousarray(pts, np.float64)
+    if pts.ndim != 2 or pts.shape[0] != 2:
+        raise ValueError(f"points must be a (2, N) array of (x, y) rows, got shape {pts.shape}")
+    return pts
+
+
+# Per-pixel kernels (numba): one ray cast, projection and visibility test per point, no temporaries.
+
+
+@jit(inline=True)
+def _visible1(g, terms, ex, ey, ez, x, y, z):  # noqa: ANN001, ANN202
+    """True where the first surface hit from the eye ``e`` towards the point ``X`` is ``X`` itself."""
+    rx, ry, rz = x - ex, y - ey, z - ez
+    dist = np.sqrt(rx * rx + ry * ry + rz * rz)
+    if dist > 0:
+        rx, ry, rz = rx / dist, ry / dist, rz / dist
+    if single1(g, ex, ey, ez, rx, ry, rz):
+        return True
+    t = hit1(g, terms, ex, ey, ez, rx, ry, rz, dist)
+    return np.isfinite(t) and t > dist * (1 - _VISIBILITY_TOL)
+
+
+@jit
+def _forward_many(proj, cam, R, C, g, terms, pts):  # noqa: ANN001, ANN202
+    n = pts.shape[1]
+    uv, reason = np.empty((2, n)), np.empty(n, np.uint8)
+    always_seen = never_hidden1(g, C[0], C[1], C[2])
+    t1 = t2 = np.nan  # the previous two rays' distances: neighbouring pixels hit close together
+    sx = sy = 0.0  # the previous pixel's undistortion shift
+    for i in range(n):
+        dx, dy, dz, lens_ok, sx, sy = ray1(proj, pts[0, i], pts[1, i], sx, sy)
+        t = hit1(g, terms, 0.0, 0.0, 0.0, dx, dy, dz, 2.0 * t1 - t2)
+        hit = np.isfinite(t)
+        t1, t2 = (t, t1) if hit else (np.nan, np.nan)
+        if not hit:
+            t = 0.0
+        x, y, z = dx * t, dy * t, dz * t
+        px, py, pz = x - C[0], y - C[1], z - C[2]
+        u, v, cam_ok = project1(cam, R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz,
+                                R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz,
+                                R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz)  # fmt: skip
+        frame_ok = in_frame1(cam, u, v, 1e-6)
+        r = 0 if lens_ok and cam_ok else LENS
+        if not hit:
+            r |= MISS
+        elif not frame_ok:
+            r |= OUT_OF_FRAME
+        elif lens_ok and cam_ok and not always_seen and not _visible1(g, terms, C[0], C[1], C[2], x, y, z):
+            r |= OCCLUDED
+        uv[0, i], uv[1, i], reason[i] = u, v, r
+    return uv, reason
+
+
+@jit
+def _backward_many(cam, proj, R, C, g, terms, pts):  # noqa: ANN001, ANN202
+    n = pts.shape[1]
+    xy, lit = np.empty((2, n)), np.empty(n, np.bool_)
+    always_lit = never_hidden1(g, 0.0, 0.0, 0.0)
+    t1 = t2 = np.nan
+    sx = sy = 0.0
+    for i in range(n):
+        cx, cy, cz, lens_ok, sx, sy = ray1(cam, pts[0, i], pts[1, i], sx, sy)
+        dx = R[0, 0] * cx + R[1, 0] * cy + R[2, 0] * cz  # R^T: camera -> world
+        dy = R[0, 1] * cx + R[1, 1] * cy + R[2, 1] * cz
+        dz = R[0, 2] * cx + R[1, 2] * cy + R[2, 2] * cz
+        t = hit1(g, terms, C[0], C[1], C[2], dx, dy, dz, 2.0 * t1 - t2)
+        hit = np.isfinite(t)
+        t1, t2 = (t, t1) if hit else (np.nan, np.nan)
+        if not hit:
+            t = 0.0
+        x, y, z = C[0] + dx * t, C[1] + dy * t, C[2] + dz * t
+        u, v, proj_ok = project1(proj, x, y, z)
+        ok = hit and lens_ok and proj_ok and in_frame1(proj, u, v, PROJECTOR_FOOTPRINT)
+        xy[0, i], xy[1, i], lit[i] = u, v, ok and (always_lit or _visible1(g, terms, 0.0, 0.0, 0.0, x, y, z))
+    return xy, lit
+
+
+@lru_cache(maxsize=4)
 def pixel_grid(height: int, width: int) -> np.ndarray:
-    """All pixel centres of an ``height x width`` frame as ``(2, H*W)`` float64 rows (x, y), row-major."""
+    """All pixel centres of an ``height x width`` frame as ``(2, H*W)`` float64 rows (x, y), row-major.
+
+    Cached (every sample of a dataset uses the same grid), hence read-only.
+    """
     ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
-    return np.stack([xs.ravel(), ys.ravel()])
+    grid = np.stack([xs.ravel(), ys.ravel()])
+    grid.flags.writeable = False
+    return grid
 
 
 def look_at(C: np.ndarray, target: np.ndarray, offset_px: tuple[float, float], roll: float,

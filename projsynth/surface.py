@@ -17,8 +17,11 @@ Kinds (parameters in world units, the projector-surface distance being about 1):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+
+from .jit import jit
 
 KINDS = (
     "plane",
@@ -29,7 +32,8 @@ KINDS = (
     "wave",
     "bumps",
 )
-_HIT_TOL = 1e-10  # |g(t)| at convergence for height fields, in world units (~1e-7 px)
+PLANE, CYLINDER_CONVEX, CYLINDER_CONCAVE, SPHERE_CONVEX, SPHERE_CONCAVE, WAVE, BUMPS = range(len(KINDS))
+_HIT_TOL = 1e-9  # |g(t)| at convergence for height fields, in world units (~1e-6 px)
 _MAX_SAFE_STEPS = 48  # rays still short of the root then (near-grazing) count as misses
 _NEAR = 1e-5  # safe stepping hands over to Newton this close to the root (world units)
 
@@ -47,10 +51,10 @@ class Surface:
     origin: np.ndarray  # local origin in the world frame, (3,)
     params: dict = field(default_factory=dict)
 
-    def to_local(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World ``(3, N)`` ray origins and directions in the local frame (``o`` may be ``(3, 1)``)."""
-        rt = self.rotation.T
-        return rt @ (o - self.origin[:, None]), rt @ d
+    @cached_property
+    def packed(self) -> tuple[tuple[float, ...], np.ndarray]:
+        """The surface as the kernels take it: ``(geometry, terms)`` (see ``_pack``)."""
+        return _pack(self.kind, self.rotation, self.origin, self.params)
 
     def to_dict(self) -> dict:
         return {
@@ -65,23 +69,11 @@ def single_crossing(surface: Surface, o: np.ndarray, d: np.ndarray) -> np.ndarra
     """True for rays ``(3, N)`` that provably meet the surface at most once (so nothing hides it).
 
     Planes when the eye is in front of them; height fields when the ray is steeper than the surface's
-    maximum slope; concave quadrics when the shared origin ``o`` ``(3, 1)`` is inside them; otherwise
-    the caller casts.
+    maximum slope; concave quadrics when the ray's origin is inside them; otherwise the caller casts.
+    ``o`` is ``(3, N)`` or one shared origin ``(3, 1)``.
     """
-    if surface.kind == "plane":  # a single crossing, if the eye is on the front side at all
-        ol, _ = surface.to_local(o, d[:, :1])
-        return np.broadcast_to(ol[2] < 0, (d.shape[1],)).copy()
-    if surface.kind in _HEIGHTFIELDS:
-        _, dl = surface.to_local(o, d)
-        return dl[2] > _HEIGHTFIELDS[surface.kind](surface.params).slope * np.hypot(dl[0], dl[1]) * 1.0001
-    if surface.kind.endswith("concave") and o.shape[1] == 1:
-        # seen from inside the full quadric, its inner surface never hides itself
-        radius = surface.params["radius"]
-        ol, _ = surface.to_local(o, d[:, :1])
-        rel = ol[:, 0] - np.array([0.0, 0.0, -radius])
-        inside = (rel[0] ** 2 + rel[2] ** 2 + (rel[1] ** 2 if surface.kind.startswith("sphere") else 0.0)) < radius**2
-        return np.full(d.shape[1], bool(inside))
-    return np.zeros(d.shape[1], bool)
+    o, d = _rays(o, d)
+    return _single_many(surface.packed[0], o, d)
 
 
 def intersect(surface: Surface, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,156 +83,208 @@ def intersect(surface: Surface, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarra
     Returns:
         ``(t, hit)``: distance along each ray (inf where missed) and the hit mask.
     """
-    ol, dl = surface.to_local(o, d)
-    if surface.kind == "plane":
-        t = _plane(ol, dl)
-    elif surface.kind.startswith(("cylinder", "sphere")):
-        t = _quadric(surface.kind, surface.params["radius"], ol, dl)
-    elif surface.kind in ("wave", "bumps"):
-        t = _heightfield(_HEIGHTFIELDS[surface.kind](surface.params), ol, dl)
-    else:
-        raise ValueError(f"unknown surface kind {surface.kind!r}")
-    hit = np.isfinite(t)
-    return t, hit
+    o, d = _rays(o, d)
+    t = _intersect_many(*surface.packed, o, d)
+    return t, np.isfinite(t)
 
 
-def _plane(o: np.ndarray, d: np.ndarray) -> np.ndarray:
-    dz = d[2]
-    front = dz > 1e-12
-    t = np.where(front, -o[2] / np.where(front, dz, 1.0), np.inf)
-    return np.where(t > 0, t, np.inf)
+def _rays(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    o = np.ascontiguousarray(o, np.float64)
+    d = np.ascontiguousarray(d, np.float64)
+    if o.ndim != 2 or d.ndim != 2 or o.shape[0] != 3 or d.shape[0] != 3 or o.shape[1] not in (1, d.shape[1]):
+        raise ValueError(f"rays need origins (3, 1) or (3, N) and directions (3, N), got {o.shape} and {d.shape}")
+    return o, d
 
 
-def _quadric(kind: str, radius: float, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-    convex = kind.endswith("convex")
-    centre_z = radius if convex else -radius
-    axes = [0, 2] if kind.startswith("cylinder") else [0, 1, 2]  # cylinder axis along local y
-    oc = o - np.array([0.0, 0.0, centre_z])[:, None]  # relative to the centre
-    oa, da = oc[axes], d[axes]
-    a = (da * da).sum(0)
-    b = (oa * da).sum(0)  # half of the usual b
-    c = (oa * oa).sum(0) - radius * radius
+def _pack(kind: str, rotation: np.ndarray, origin: np.ndarray, params: dict) -> tuple[tuple[float, ...], np.ndarray]:
+    if kind not in KINDS:
+        raise ValueError(f"unknown surface kind {kind!r}")
+    code = KINDS.index(kind)
+    radius, terms, bound, slope = 0.0, np.zeros((0, 4)), 0.0, 0.0
+    if code in (CYLINDER_CONVEX, CYLINDER_CONCAVE, SPHERE_CONVEX, SPHERE_CONCAVE):
+        radius = float(params["radius"])
+    elif code == WAVE:
+        terms = np.asarray(params["waves"], dtype=np.float64).reshape(-1, 4)
+        amp, kx, ky, _ = terms.T
+        bound, slope = float(np.abs(amp).sum()), float((np.abs(amp) * np.hypot(kx, ky)).sum())
+    elif code == BUMPS:
+        terms = np.asarray(params["bumps"], dtype=np.float64).reshape(-1, 4)
+        amp, _, _, sigma = terms.T
+        bound, slope = float(np.abs(amp).sum()), float((np.abs(amp) / sigma).sum() * np.exp(-0.5))
+    geometry = (code, *np.asarray(rotation, np.float64).ravel(), *np.asarray(origin, np.float64), radius, bound, slope)
+    return tuple(float(x) for x in geometry), np.ascontiguousarray(terms)
+
+
+# Per-ray kernels (numba). A packed surface is the pair made by _pack: a tuple of floats ``g`` (kind
+# code, world_from_local rotation row-major, origin, radius, height-field bound and slope), passed by
+# value, and the (M, 4) height-field ``terms``.
+
+
+@jit(inline=True)
+def _to_local(g, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN202
+    px, py, pz = ox - g[10], oy - g[11], oz - g[12]  # R^T (o - origin), R^T d; R[i, j] = g[1 + 3 i + j]
+    return (g[1] * px + g[4] * py + g[7] * pz, g[2] * px + g[5] * py + g[8] * pz,
+            g[3] * px + g[6] * py + g[9] * pz, g[1] * dx + g[4] * dy + g[7] * dz,
+            g[2] * dx + g[5] * dy + g[8] * dz, g[3] * dx + g[6] * dy + g[9] * dz)  # fmt: skip
+
+
+@jit(inline=True)
+def hit1(g, terms, ox, oy, oz, dx, dy, dz, t0):  # noqa: ANN001, ANN201
+    """Distance to the first front-side hit of one world-frame ray (``inf`` when it misses).
+
+    ``t0``: a guess (the neighbouring ray's distance, or nan). Height fields start their bracketed
+    Newton there when it lies inside the bracket; the root, unique for such rays, does not depend on it
+    beyond the convergence tolerance (1e-10 world units, about 1e-7 px).
+    """
+    ox, oy, oz, dx, dy, dz = _to_local(g, ox, oy, oz, dx, dy, dz)
+    kind = g[0]
+    if kind == PLANE:
+        t = -oz / dz if dz > 1e-12 else np.inf
+        return t if t > 0 else np.inf
+    if kind == WAVE or kind == BUMPS:
+        return _heightfield(kind, terms, g[14], g[15], ox, oy, oz, dx, dy, dz, t0)
+    return _quadric(kind, g[13], ox, oy, oz, dx, dy, dz)
+
+
+@jit(inline=True)
+def single1(g, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN201
+    """True when one world-frame ray provably meets the surface at most once (see single_crossing)."""
+    ox, oy, oz, dx, dy, dz = _to_local(g, ox, oy, oz, dx, dy, dz)
+    kind = g[0]
+    if kind == PLANE:  # a single crossing, if the eye is on the front side at all
+        return oz < 0
+    if kind == WAVE or kind == BUMPS:
+        return dz > g[15] * np.hypot(dx, dy) * 1.0001
+    if kind == CYLINDER_CONCAVE or kind == SPHERE_CONCAVE:
+        # seen from inside the full quadric, its inner surface never hides itself
+        rz = oz + g[13]
+        r2 = ox * ox + rz * rz + (oy * oy if kind == SPHERE_CONCAVE else 0.0)
+        return r2 < g[13] * g[13]
+    return False
+
+
+@jit(inline=True)
+def never_hidden1(g, ex, ey, ez):  # noqa: ANN001, ANN201
+    """True when every ray from the eye meets the surface at most once, whatever its direction: a plane
+    seen from its front side, a concave quadric seen from inside."""
+    kind = g[0]
+    fixed = kind == PLANE or kind == CYLINDER_CONCAVE or kind == SPHERE_CONCAVE  # direction plays no part
+    return fixed and single1(g, ex, ey, ez, 0.0, 0.0, 1.0)
+
+
+@jit
+def _quadric(kind, radius, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN202
+    convex = kind == CYLINDER_CONVEX or kind == SPHERE_CONVEX
+    ocz = oz - (radius if convex else -radius)  # relative to the centre; cylinders' axis is local y
+    sphere = kind == SPHERE_CONVEX or kind == SPHERE_CONCAVE
+    a = dx * dx + dz * dz + (dy * dy if sphere else 0.0)
+    b = ox * dx + ocz * dz + (oy * dy if sphere else 0.0)  # half of the usual b
+    c = ox * ox + ocz * ocz + (oy * oy if sphere else 0.0) - radius * radius
     disc = b * b - a * c
-    real = (disc >= 0) & (a > 1e-15)
-    sq = np.sqrt(np.where(real, disc, 0.0))
-    q = -(b + np.copysign(sq, b))  # numerically stable pair of roots: q / a and c / q
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r0, r1 = q / a, c / q
-    r0 = np.where(real & np.isfinite(r0), r0, np.inf)
-    r1 = np.where(real & np.isfinite(r1), r1, np.inf)
-    best = np.full(d.shape[1], np.inf)
-    for t in (np.minimum(r0, r1), np.maximum(r0, r1)):  # take the first root on the front side
+    if not (disc >= 0 and a > 1e-15):
+        return np.inf
+    q = -(b + np.copysign(np.sqrt(disc), b))  # numerically stable pair of roots: q / a and c / q
+    r0, r1 = q / a, c / q
+    r0 = r0 if np.isfinite(r0) else np.inf
+    r1 = r1 if np.isfinite(r1) else np.inf
+    for t in (min(r0, r1), max(r0, r1)):  # the first root on the front side
         # at o + t d: (d . outward normal) = b + t a up to a positive factor, height = oc_z + t d_z;
         # the front side of a concave surface is its inside
         dot = b + t * a
+        z = ocz + t * dz
         facing = dot < 0 if convex else dot > 0
-        z = oc[2] + t * d[2]
         on_half = z <= 0 if convex else z >= 0
-        ok = np.isfinite(t) & (t > 1e-9) & on_half & facing & np.isinf(best)
-        best = np.where(ok, t, best)
-    return best
+        if np.isfinite(t) and t > 1e-9 and on_half and facing:
+            return t
+    return np.inf
 
 
-class _Wave:
-    def __init__(self, params: dict):
-        w = np.asarray(params["waves"], dtype=np.float64).reshape(-1, 4)
-        self.amp, self.kx, self.ky, self.phase = w.T
-        self.bound = float(np.abs(self.amp).sum())
-        self.slope = float((np.abs(self.amp) * np.hypot(self.kx, self.ky)).sum())
-
-    def __call__(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        h = np.zeros_like(x)
-        hx = np.zeros_like(x)
-        hy = np.zeros_like(x)
-        for a, kx, ky, ph in zip(self.amp, self.kx, self.ky, self.phase, strict=True):
-            arg = kx * x + ky * y + ph
+@jit
+def _field(kind, terms, x, y):  # noqa: ANN001, ANN202
+    """Height and gradient ``(h, h_x, h_y)`` of a wave or bumps field at local ``(x, y)``."""
+    h = hx = hy = 0.0
+    for i in range(terms.shape[0]):
+        a, p, q, r = terms[i, 0], terms[i, 1], terms[i, 2], terms[i, 3]
+        if kind == WAVE:  # a sin(kx x + ky y + phase): p, q = kx, ky; r = phase
+            arg = p * x + q * y + r
             h += a * np.sin(arg)
             c = a * np.cos(arg)
-            hx += kx * c
-            hy += ky * c
-        return h, hx, hy
-
-
-class _Bumps:
-    def __init__(self, params: dict):
-        b = np.asarray(params["bumps"], dtype=np.float64).reshape(-1, 4)
-        self.amp, self.cx, self.cy, self.sigma = b.T
-        self.bound = float(np.abs(self.amp).sum())
-        self.slope = float((np.abs(self.amp) / self.sigma).sum() * np.exp(-0.5))
-
-    def __call__(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        h = np.zeros_like(x)
-        hx = np.zeros_like(x)
-        hy = np.zeros_like(x)
-        for a, cx, cy, s in zip(self.amp, self.cx, self.cy, self.sigma, strict=True):
-            dx, dy = x - cx, y - cy
-            e = a * np.exp((dx * dx + dy * dy) * (-0.5 / (s * s)))
+            hx += p * c
+            hy += q * c
+        else:  # a exp(-|(x, y) - (cx, cy)|^2 / (2 s^2)): p, q = cx, cy; r = s
+            ex, ey = x - p, y - q
+            e = a * np.exp((ex * ex + ey * ey) * (-0.5 / (r * r)))
             h += e
-            hx -= dx * e / (s * s)
-            hy -= dy * e / (s * s)
-        return h, hx, hy
+            hx -= ex * e / (r * r)
+            hy -= ey * e / (r * r)
+    return h, hx, hy
 
 
-_HEIGHTFIELDS = {"wave": _Wave, "bumps": _Bumps}
+@jit
+def _g(kind, terms, ox, oy, oz, dx, dy, dz, t):  # noqa: ANN001, ANN202
+    """``g(t) = o_z + t d_z - h(o_xy + t d_xy)`` and ``g'(t)``."""
+    h, hx, hy = _field(kind, terms, ox + t * dx, oy + t * dy)
+    return oz + t * dz - h, dz - hx * dx - hy * dy
 
 
-def _heightfield(field_: _Wave | _Bumps, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """First root of ``g(t) = o_z + t d_z - h(o_xy + t d_xy)`` inside the slab ``|z| <= bound``.
+@jit
+def _heightfield(kind, terms, bound, slope, ox, oy, oz, dx, dy, dz, t0):  # noqa: ANN001, ANN202
+    """First root of ``g`` inside the slab ``|z| <= bound``.
 
-    Rays whose slope is steeper than the surface's (``d_z > slope * |d_xy|``) meet it exactly once:
-    bracketed Newton. The others march with Lipschitz-safe steps ``t += -g / (d_z + slope |d_xy|)``,
-    which can never pass the first root, and are dropped (miss) if they do not converge.
+    Rays steeper than the surface (``d_z > slope * |d_xy|``) meet it exactly once: bracketed Newton.
+    The others march with Lipschitz-safe steps ``t += -g / (d_z + slope |d_xy|)``, which can never pass
+    the first root, then Newton polishes; rays that do not converge (near-grazing) count as misses.
     """
-    n = d.shape[1]
-    o = np.broadcast_to(o, d.shape)
-    t_out = np.full(n, np.inf)
-    dz = d[2]
-    dxy = np.hypot(d[0], d[1])
-    usable = (dz > 1e-9) & (o[2] < -field_.bound)  # viewer in front of the slab, looking in
-    lo = np.where(usable, (-field_.bound - o[2]) / np.where(usable, dz, 1.0), 0.0)
-    hi = np.where(usable, (field_.bound - o[2]) / np.where(usable, dz, 1.0), 0.0)
-    certified = usable & (dz > field_.slope * dxy * 1.0001)  # as in single_crossing
-
-    def g_and_slope(idx: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        dx, dy = d[0, idx], d[1, idx]
-        h, hx, hy = field_(o[0, idx] + t * dx, o[1, idx] + t * dy)
-        return o[2, idx] + t * dz[idx] - h, dz[idx] - hx * dx - hy * dy
-
-    # Certified rays: Newton inside the bracket [a, b] (g(a) <= 0 <= g(b)), bisecting when a step
-    # leaves it; converged rays leave the active set.
-    idx = np.nonzero(certified)[0]
-    a, b = lo[idx], hi[idx]
-    t = np.clip(-o[2, idx] / dz[idx], a, b)  # start at the mean plane z = 0
-    for _ in range(60):
-        if idx.size == 0:
+    if not (dz > 1e-9 and oz < -bound):  # the viewer must be in front of the slab, looking in
+        return np.inf
+    lo, hi = (-bound - oz) / dz, (bound - oz) / dz
+    dxy = np.hypot(dx, dy)
+    if dz > slope * dxy * 1.0001:  # certified single crossing, as in single1
+        a, b = lo, hi  # g(a) <= 0 <= g(b)
+        t = t0 if a <= t0 <= b else min(max(-oz / dz, a), b)  # the guess, else the mean plane z = 0
+        for _ in range(60):
+            g, gp = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
+            if abs(g) < _HIT_TOL:
+                return t
+            if g < 0:
+                a = t
+            elif g > 0:
+                b = t
+            tn = t - g / gp
+            t = tn if a <= tn <= b else 0.5 * (a + b)
+        return np.inf
+    lipschitz = dz + slope * dxy
+    t = lo
+    for step in range(_MAX_SAFE_STEPS):
+        g, _ = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
+        if g > -_NEAR:
             break
-        g, gp = g_and_slope(idx, t)
-        done = np.abs(g) < _HIT_TOL
-        t_out[idx[done]] = t[done]
-        keep = ~done
-        idx, t, g, gp = idx[keep], t[keep], g[keep], gp[keep]
-        a = np.where(g < 0, t, a[keep])
-        b = np.where(g > 0, t, b[keep])
-        tn = t - g / gp
-        t = np.where((tn >= a) & (tn <= b), tn, 0.5 * (a + b))
+        if step == _MAX_SAFE_STEPS - 1:
+            return np.inf
+        t -= g / lipschitz
+    for _ in range(4):  # within _NEAR of the first root only a tangent ray could reach a later one
+        g, gp = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
+        if gp > 1e-12:
+            t -= g / gp
+    g, _ = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
+    return t if abs(g) < _HIT_TOL and t <= hi else np.inf
 
-    # Other rays: Lipschitz-safe steps approach the first root from below and never pass it; once
-    # within _NEAR of it, Newton polishes (only a tangent ray could then reach a later root).
-    idx = np.nonzero(usable & ~certified)[0]
-    if idx.size:
-        lipschitz = dz[idx] + field_.slope * dxy[idx]
-        t = lo[idx]
-        for _ in range(_MAX_SAFE_STEPS):
-            g, _ = g_and_slope(idx, t)
-            near = g > -_NEAR
-            if near.all():
-                break
-            t = np.where(near, t, t - g / lipschitz)
-        near = g > -_NEAR
-        idx, t = idx[near], t[near]
-        for _ in range(4):
-            g, gp = g_and_slope(idx, t)
-            t = t - g / np.where(gp > 1e-12, gp, np.inf)
-        g, _ = g_and_slope(idx, t)
-        t_out[idx] = np.where((np.abs(g) < _HIT_TOL) & (t <= hi[idx]), t, np.inf)
-    return t_out
+
+@jit
+def _intersect_many(g, terms, o, d):  # noqa: ANN001, ANN202
+    t = np.empty(d.shape[1])
+    shared = o.shape[1] == 1
+    for i in range(d.shape[1]):
+        j = 0 if shared else i
+        t[i] = hit1(g, terms, o[0, j], o[1, j], o[2, j], d[0, i], d[1, i], d[2, i], np.nan)
+    return t
+
+
+@jit
+def _single_many(g, o, d):  # noqa: ANN001, ANN202
+    out = np.empty(d.shape[1], np.bool_)
+    shared = o.shape[1] == 1
+    for i in range(d.shape[1]):
+        j = 0 if shared else i
+        out[i] = single1(g, o[0, j], o[1, j], o[2, j], d[0, i], d[1, i], d[2, i])
+    return out

@@ -87,3 +87,32 @@ def test_plane_seen_from_behind_is_not_visible():
     _, lit = backward(scene, pixel_grid(H, W))
     assert ((fm.reason & OCCLUDED) > 0).sum() > 1000  # lit by the projector, hidden from the camera
     assert not fm.valid.any() and not lit.any()
+
+
+@pytest.mark.parametrize("family", ["lens", "sphere_convex", "wave", "bumps"])
+def test_maps_do_not_depend_on_the_order_of_the_points(family):
+    # the kernels start each ray's iterations from its neighbour's solution; the answer must not move
+    cfg = _config(family, 4)
+    scene, _ = make_scene(family, cfg.geometry, np.random.default_rng(5), (H, W))
+    grid = pixel_grid(H, W)
+    perm = np.random.default_rng(0).permutation(grid.shape[1])
+    fm, fp = forward(scene, grid), forward(scene, grid[:, perm])
+    np.testing.assert_array_equal(fm.reason[perm], fp.reason)
+    assert np.abs(fm.uv[:, perm] - fp.uv)[:, fp.valid].max() < 1e-6
+    (xy, lit), (xp, lp) = backward(scene, grid), backward(scene, grid[:, perm])
+    np.testing.assert_array_equal(lit[perm], lp)
+    assert np.abs(xy[:, perm] - xp)[:, lp].max() < 1e-6
+
+
+def test_pixel_grid_is_shared_and_read_only():
+    grid = pixel_grid(H, W)
+    assert grid is pixel_grid(H, W) and not grid.flags.writeable
+    assert grid.shape == (2, H * W) and grid[:, W + 2].tolist() == [2.0, 1.0]
+
+
+def test_ray_arrays_with_wrong_shapes_are_rejected():
+    surface = Surface("plane", np.eye(3), np.array([0.0, 0.0, 1.0]))
+    with pytest.raises(ValueError, match="directions"):
+        intersect(surface, np.zeros((3, 2)), np.zeros((3, 5)))
+    with pytest.raises(ValueError, match="points must be"):
+        forward(_simple_scene("plane", {}), np.zeros((3, 4)))
