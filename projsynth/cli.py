@@ -37,6 +37,9 @@ def _bar(total: int, desc: str, quiet: bool) -> tqdm:
     return tqdm(total=total, desc=desc, unit="sample", disable=quiet, file=sys.stderr, leave=False)
 
 
+SPLIT_HELP = "train, val or test (disjoint source images), or all (every image: a held-out folder)."
+
+
 @app.command()
 def gen(
     out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).")],
@@ -45,8 +48,7 @@ def gen(
     pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
     size: Annotated[str, typer.Option(help="Image size HxW.")] = "384x512",
     seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
-    split: Annotated[str, typer.Option(help="train, val or test (disjoint source images), "
-                                                "or all (every image: a held-out folder).")] = "train",
+    split: Annotated[str, typer.Option(help=SPLIT_HELP)] = "train",
     transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).")] = None,
     table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
     shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,
