@@ -100,7 +100,10 @@ def pixels_to_rays(lens: Lens, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray
     Returns:
         ``(dirs, ok)``: ``(3, N)`` float64 unit vectors and a mask of pixels that undistort exactly.
     """
-    return _rays_many(lens.packed, np.asarray(u, np.float64).ravel(), np.asarray(v, np.float64).ravel())
+    u, v = np.asarray(u, np.float64).ravel(), np.asarray(v, np.float64).ravel()
+    if u.shape != v.shape:
+        raise ValueError(f"pixels_to_rays needs as many u as v, got {u.size} and {v.size}")
+    return _rays_many(lens.packed, u, v)
 
 
 def project_points(lens: Lens, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -110,7 +113,10 @@ def project_points(lens: Lens, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray,
         ``(u, v, ok)``: pixel coordinates and a mask of points in front of the lens and inside its
         unfolded radius (outside it the polynomial model maps several rays to one pixel).
     """
-    return _project_many(lens.packed, np.ascontiguousarray(pts, np.float64))
+    pts = np.ascontiguousarray(pts, np.float64)
+    if pts.ndim != 2 or pts.shape[0] != 3:
+        raise ValueError(f"project_points needs lens-frame points (3, N), got shape {pts.shape}")
+    return _project_many(lens.packed, pts)
 
 
 def _coefficients(dist: tuple[float, ...]) -> tuple[float, ...]:
@@ -157,7 +163,7 @@ def undistort1(xd: float, yd: float, k1: float, k2: float, p1: float, p2: float,
 @jit(inline=True)
 def ray1(lens: tuple, u: float, v: float, sx: float, sy: float) -> tuple[float, float, float, bool, float, float]:
     """Unit lens-frame ray ``(dx, dy, dz)`` of pixel ``(u, v)``, whether it undistorts exactly, and the
-    undistortion shift ``(x - x_d, y - y_d)`` in normalised coordinates.
+    undistortion shift ``(x - x_d, y - y_d)`` in normalised coordinates (0 where it failed).
 
     ``(sx, sy)``: a guess of that shift (a neighbouring pixel's, or 0): Newton starts there. The shift
     varies slowly, so a neighbour's saves about half the iterations; the result does not depend on it
@@ -169,7 +175,7 @@ def ray1(lens: tuple, u: float, v: float, sx: float, sy: float) -> tuple[float, 
         x, y, ok = undistort1(xd, yd, lens[4], lens[5], lens[6], lens[7], lens[8], max(lens[0], lens[1]), lens[11],
                               xd + sx, yd + sy)  # fmt: skip
     inv = 1.0 / np.sqrt(x * x + y * y + 1.0)
-    return x * inv, y * inv, inv, ok, x - xd, y - yd
+    return x * inv, y * inv, inv, ok, (x - xd) if ok else 0.0, (y - yd) if ok else 0.0  # no bad guesses passed on
 
 
 @jit(inline=True)

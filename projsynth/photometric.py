@@ -101,22 +101,25 @@ def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
     """Sample ``image`` ``(H, W, 4)`` uint8 at float positions with exact bilinear weights.
 
     Convention: pixel centres at integers; positions outside ``[0, W-1] x [0, H-1]`` (up to the
-    frame's edge at -0.5 / W-0.5) take the border pixels' values. (``cv2.remap`` quantises positions
-    to 1/32 px; ground truth needs the exact position.)
+    frame's edge at -0.5 / W-0.5) take the border pixels' values; non-finite positions give 0.
+    (``cv2.remap`` quantises positions to 1/32 px; ground truth needs the exact position.)
 
     Returns:
         ``(N, 4)`` float32.
     """
     image = _rgba(image)
-    x = np.ascontiguousarray(x, np.float64).ravel()
-    y = np.ascontiguousarray(y, np.float64).ravel()
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    x, y = np.ascontiguousarray(x.ravel()), np.ascontiguousarray(y.ravel())
     return _sample_where(image, x, y, np.ones(x.size, np.bool_))
 
 
 def sample_where(image: np.ndarray, xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """:func:`sample_bilinear` at ``xy`` ``(2, N)`` where ``mask`` ``(N,)`` is true, 0 elsewhere."""
     xy = np.ascontiguousarray(xy, np.float64)
-    return _sample_where(_rgba(image), xy[0], xy[1], np.ascontiguousarray(mask, np.bool_))
+    mask = np.ascontiguousarray(mask, np.bool_)
+    if xy.ndim != 2 or xy.shape[0] != 2 or mask.shape != (xy.shape[1],):
+        raise ValueError(f"sample_where needs positions (2, N) and a mask (N,), got {xy.shape} and {mask.shape}")
+    return _sample_where(_rgba(image), xy[0], xy[1], mask)
 
 
 def _rgba(image: np.ndarray) -> np.ndarray:
@@ -132,7 +135,7 @@ def _sample_where(image, xs, ys, mask):  # noqa: ANN001, ANN202
     h, w = image.shape[0], image.shape[1]
     out = np.zeros((xs.size, 4), np.float32)
     for i in range(xs.size):
-        if not mask[i]:
+        if not (mask[i] and np.isfinite(xs[i]) and np.isfinite(ys[i])):  # nan would index anywhere
             continue
         x, y = min(max(xs[i], 0.0), w - 1.0), min(max(ys[i], 0.0), h - 1.0)
         x0, y0 = min(int(x), w - 2), min(int(y), h - 2)  # x >= 0, so truncation is floor

@@ -43,3 +43,13 @@ def test_fold_radius_marks_folded_points_invalid():
     assert strong.max_radius < 1.0  # r(1 - 0.6 r^2) has a maximum at r = 0.745
     _, _, ok = project_points(strong, np.array([[0.1, 0.9], [0.0, 0.0], [1.0, 1.0]]))
     assert ok.tolist() == [True, False]
+
+
+def test_array_functions_reject_mismatched_shapes():
+    lens = Lens(480.0, 480.0, 250.0, 190.0, DIST, 512, 384)
+    with pytest.raises(ValueError, match="as many u as v"):
+        pixels_to_rays(lens, np.zeros(3), np.zeros(2))
+    with pytest.raises(ValueError, match=r"\(3, N\)"):
+        project_points(lens, np.zeros((2, 4)))
+    with pytest.raises(ValueError, match="5 coefficients"):
+        distort(np.zeros(2), np.zeros(2), (0.1, 0.0))

@@ -121,3 +121,15 @@ def test_valid_pixels_keep_a_margin_from_occlusion_and_silhouettes():
     edge = np.argwhere((reason & 5) > 0)  # MISS | OCCLUDED
     for y, x in np.argwhere(out.valid)[::17]:
         assert np.abs(edge - (y, x)).max(axis=1).min() > EDGE_MARGIN_PX
+
+
+def test_sampling_rejects_bad_shapes_and_gives_zero_at_non_finite_positions():
+    from projsynth.photometric import sample_where
+
+    img = np.full((4, 5, 4), 7, np.uint8)
+    out = sample_bilinear(img, np.array([np.nan, 1.5, np.inf]), np.array([1.0, 1.0, 2.0]))
+    assert out[:, 0].tolist() == [0.0, 7.0, 0.0]
+    with pytest.raises(ValueError, match="mask"):
+        sample_where(img, np.zeros((2, 3)), np.ones(2, bool))
+    with pytest.raises(ValueError, match="uint8"):
+        sample_bilinear(img[..., :3], np.zeros(1), np.zeros(1))
