@@ -46,9 +46,9 @@ class Lens:
 
         A tuple of scalars, not an array: kernels receive it by value, without reference counting.
         """
-        dist = _coefficients(self.dist)
-        fold = _fold_radius(dist)
-        values = (self.fx, self.fy, self.cx, self.cy, *dist, self.width, self.height, fold * fold, self.distorted)
+        fold = self.max_radius
+        values = (self.fx, self.fy, self.cx, self.cy, *_coefficients(self.dist), self.width, self.height, fold * fold,
+                  self.distorted)  # fmt: skip
         return tuple(float(x) for x in values)
 
     def to_dict(self) -> dict:
