@@ -16,7 +16,7 @@ from .jit import jit
 
 UNDISTORT_TOL_PX = 1e-6  # Newton stops well below DESIGN's 1e-4 px requirement
 _NEWTON_ITERS = 12
-_PACKED_FIELDS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "width", "height", "fold_r2", "distorted")
+# A packed lens (what the kernels take): (fx, fy, cx, cy, k1, k2, p1, p2, k3, width, height, fold_r2, distorted)
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,7 @@ class Lens:
 
     @cached_property
     def packed(self) -> tuple[float, ...]:
-        """The lens as the tuple of floats the numba kernels take (fields: ``_PACKED_FIELDS``).
+        """The lens as the tuple of floats the numba kernels take (field order: the comment at the top of this module).
 
         A tuple of scalars, not an array: kernels receive it by value, without reference counting.
         """
@@ -125,7 +125,7 @@ def _coefficients(dist: tuple[float, ...]) -> tuple[float, ...]:
     return tuple(float(c) for c in dist)
 
 
-# Per-point kernels (numba). A packed lens is the tuple of _PACKED_FIELDS.
+# Per-point kernels (numba), taking a packed lens (see the top of this module).
 
 
 @jit(inline=True)

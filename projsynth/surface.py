@@ -65,17 +65,6 @@ class Surface:
         }
 
 
-def single_crossing(surface: Surface, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """True for rays ``(3, N)`` that provably meet the surface at most once (so nothing hides it).
-
-    Planes when the eye is in front of them; height fields when the ray is steeper than the surface's
-    maximum slope; concave quadrics when the ray's origin is inside them; otherwise the caller casts.
-    ``o`` is ``(3, N)`` or one shared origin ``(3, 1)``.
-    """
-    o, d = _rays(o, d)
-    return _single_many(surface.packed[0], o, d)
-
-
 def intersect(surface: Surface, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First front-side hit of rays ``o + t d`` (world frame, ``d`` unit ``(3, N)``, ``o`` ``(3, N)``
     or one shared origin ``(3, 1)``).
@@ -148,7 +137,11 @@ def hit1(g, terms, ox, oy, oz, dx, dy, dz, t0):  # noqa: ANN001, ANN201
 
 @jit(inline=True)
 def single1(g, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN201
-    """True when one world-frame ray provably meets the surface at most once (see single_crossing)."""
+    """True when one world-frame ray provably meets the surface at most once, so nothing hides its hit.
+
+    Planes when the eye is in front of them; height fields when the ray is steeper than the surface's
+    maximum slope; concave quadrics when the ray's origin is inside them; otherwise the caller casts.
+    """
     ox, oy, oz, dx, dy, dz = _to_local(g, ox, oy, oz, dx, dy, dz)
     kind = g[0]
     if kind == PLANE:  # a single crossing, if the eye is on the front side at all
@@ -279,12 +272,3 @@ def _intersect_many(g, terms, o, d):  # noqa: ANN001, ANN202
         t[i] = hit1(g, terms, o[0, j], o[1, j], o[2, j], d[0, i], d[1, i], d[2, i], np.nan)
     return t
 
-
-@jit
-def _single_many(g, o, d):  # noqa: ANN001, ANN202
-    out = np.empty(d.shape[1], np.bool_)
-    shared = o.shape[1] == 1
-    for i in range(d.shape[1]):
-        j = 0 if shared else i
-        out[i] = single1(g, o[0, j], o[1, j], o[2, j], d[0, i], d[1, i], d[2, i])
-    return out
