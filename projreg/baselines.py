@@ -141,14 +141,19 @@ class SiftRansac(_OpenCVBaseline):
             self.last_status = "no-homography"
             return zero
         self.last_inliers = int(inliers.sum())
-        # The projective denominator is affine in (x, y): its sign over the image is fixed by the corners.
-        corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], np.float64)
-        den = corners @ H[2]
-        if not (np.all(den > 1e-8) or np.all(den < -1e-8)):
+        if not proper_homography(H, h, w):
             self.last_status = "degenerate"
             return zero
         self.last_status = "ok"
         return homography_flow(H, h, w)
+
+
+def proper_homography(H: np.ndarray, height: int, width: int) -> bool:
+    """Whether ``H`` keeps the whole ``height x width`` frame on one side of the line at infinity."""
+    # The projective denominator is affine in (x, y): its sign over the frame is fixed by the corners.
+    corners = np.array([[0, 0, 1], [width - 1, 0, 1], [0, height - 1, 1], [width - 1, height - 1, 1]], np.float64)
+    den = corners @ np.asarray(H, np.float64)[2]
+    return bool(np.all(den > 1e-8) or np.all(den < -1e-8))
 
 
 def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:

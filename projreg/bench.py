@@ -9,7 +9,9 @@ overall and per group of samples:
 * ``condition``: photometric condition (``params["transform"]["condition"]``);
 * ``pair_role``: ``"pair P / ROLE"``, the columns of the paper's Table 2.
 
-Groups appear in the order of their first sample. ``ms_per_pair`` is the median wall-clock time of
+Models run through the geometric refinement of :mod:`projreg.refine` unless ``refine="off"``;
+``refine="both"`` reports each model twice, refined under its name and the raw network as
+``NAME-raw``. Groups appear in the order of their first sample. ``ms_per_pair`` is the median wall-clock time of
 one ``predict`` call over the samples, after one untimed warm-up call on the first sample.
 The report schema is documented in docs/projreg-cli.md.
 
@@ -36,29 +38,51 @@ from .baselines import make_baseline
 from .evaluate import predict_flow, sample_indices
 from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
 from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint, write_atomic
+from .refine import GeometricRefiner
 
 DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
 GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
 GROUPS = ("role", "family", "condition", "pair_role")
 TABLE_METRICS = (("EPE", "epe"), *((b, b) for b in BUCKETS))
+REFINE_MODES = ("on", "off", "both")
 
 
 @dataclass(frozen=True)
 class Method:
     """A named predictor: ``predict(projected, captured)`` -> float32 flow ``(H, W, 2)``.
 
-    ``kind`` is ``"model"`` (gated by ``--fail-above``) or ``"baseline"`` (never gated).
+    ``kind`` is ``"model"`` (gated by ``--fail-above``) or ``"baseline"`` (never gated); ``refined``
+    says whether the geometric refinement (``projreg.refine``) follows the network.
     """
 
     name: str
     kind: str
     predict: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    refined: bool = False
 
 
-def model_method(path: Path, device: torch.device, name: str | None = None) -> Method:
-    """A checkpoint as a method named ``name`` (default: the file stem)."""
+def model_methods(path: Path, device: torch.device, name: str | None = None, refine: str = "on") -> list[Method]:
+    """A checkpoint as methods named ``name`` (default: the file stem), per ``refine`` (``REFINE_MODES``).
+
+    ``"on"``: the network then the geometric refinement; ``"off"``: the network alone; ``"both"``:
+    the refined method named ``name`` and the network alone named ``name-raw``.
+    """
+    if refine not in REFINE_MODES:
+        raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
     model = load_model(path, device)
-    return Method(name or Path(path).stem, "model", lambda img0, img1: predict_flow(model, img0, img1, device))
+    name = name or Path(path).stem
+    refiner = GeometricRefiner()
+
+    def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+        return predict_flow(model, img0, img1, device)
+
+    def refined(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+        return refiner.refine(img0, img1, raw(img0, img1))[0]
+
+    if refine == "off":
+        return [Method(name, "model", raw)]
+    both = [Method(name, "model", refined, True), Method(f"{name}-raw", "model", raw)]
+    return both if refine == "both" else both[:1]
 
 
 def baseline_method(name: str, equalize: bool = False) -> Method:
@@ -92,16 +116,23 @@ class _Scores:
             self.groups[g].setdefault(key, EPEAccumulator()).merge(one)
 
     def result(self, method: Method) -> dict:
-        out = {"name": method.name, "kind": method.kind, **self.all.result()}
+        out = {"name": method.name, "kind": method.kind, "refined": method.refined, **self.all.result()}
         out["ms_per_pair"] = float(np.median(self.ms)) if self.ms else None
         out["groups"] = {g: {k: acc.result() for k, acc in accs.items()} for g, accs in self.groups.items()}
         return out
 
 
 def resolve_methods(
-    models: Sequence[Path], baselines: Sequence[str], *, equalize: bool = False, device: torch.device | None = None
+    models: Sequence[Path],
+    baselines: Sequence[str],
+    *,
+    equalize: bool = False,
+    device: torch.device | None = None,
+    refine: str = "on",
 ) -> tuple[list[Method], Path | None]:
     """Checkpoints then baselines as methods; without checkpoints, the shipped reference model if any.
+
+    Each checkpoint gives one or two methods (``model_methods``, ``refine``).
 
     Returns:
         ``(methods, reference)``: ``reference`` is the shipped checkpoint when it was added, else None.
@@ -111,7 +142,7 @@ def resolve_methods(
     reference = None if models else reference_checkpoint()
     methods: list[Method] = []
     if reference is not None:
-        methods.append(model_method(reference, device, "reference"))
+        methods += model_methods(reference, device, "reference", refine)
     paths = [resolve_checkpoint(p) for p in models]
     for i, path in enumerate(paths):
         if path.resolve() in {q.resolve() for q in paths[:i]}:
@@ -120,7 +151,8 @@ def resolve_methods(
         if str(spec) == "reference" and path == reference_checkpoint():
             reference = path
         taken = {m.name for m in methods} | set(baselines)
-        methods.append(model_method(path, device, path.stem if path.stem not in taken else str(path.with_suffix(""))))
+        name = path.stem if path.stem not in taken else str(path.with_suffix(""))
+        methods += model_methods(path, device, name, refine)
     methods += [baseline_method(name, equalize) for name in baselines]
     return methods, reference
 
@@ -131,6 +163,7 @@ def run_bench(
     models: Sequence[Path] = (),
     baselines: Sequence[str] = DEFAULT_BASELINES,
     equalize: bool = False,
+    refine: str = "on",
     limit: int | None = None,
     extra_methods: Sequence[Method] = (),
     device: torch.device | None = None,
@@ -143,6 +176,8 @@ def run_bench(
         models: checkpoint paths; empty: the shipped reference model when it exists.
         baselines: baseline registry names, in report order.
         equalize: histogram-equalise both images before the baselines (see ``projreg.baselines``).
+        refine: ``"on"``, ``"off"`` or ``"both"``: models with/without/both ways the geometric
+            refinement (``model_methods``).
         limit: evaluate ``limit`` samples spread evenly over the dataset (None: all).
         extra_methods: more methods, reported after the others (a hook for callers and tests).
         device: where models run; default CUDA when available, else CPU.
@@ -161,7 +196,7 @@ def run_bench(
         indices = sample_indices(len(reader), limit)
         if not indices:
             raise ProjregError(f"--data {data}: the dataset has no samples")
-        methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device)
+        methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device, refine=refine)
         methods += list(extra_methods)
         if not methods:
             raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")
@@ -198,36 +233,49 @@ def _read(reader: ShardReader, k: int) -> dict:
         raise ProjregError(str(e)) from e
 
 
-def parse_threshold(spec: str) -> tuple[str, float]:
-    """``"METRIC=VALUE"`` -> ``(metric, value)``; METRIC one of ``GATED``.
+def parse_threshold(spec: str) -> tuple[str, float, str | None]:
+    """``"[NAME:]METRIC=VALUE"`` -> ``(metric, value, name)``; METRIC one of ``GATED``; without NAME
+    the threshold gates every model (``name`` None).
 
     Example:
         >>> parse_threshold("s40+=12.5")
-        ('s40+', 12.5)
+        ('s40+', 12.5, None)
+        >>> parse_threshold("reference-raw:epe=9")
+        ('epe', 9.0, 'reference-raw')
     """
-    metric, sep, text = spec.partition("=")
-    metric = metric.strip()
+    target, sep, text = spec.partition("=")
+    name, colon, metric = target.rpartition(":")
+    metric, name = metric.strip(), name.strip() if colon else None
     try:
         value = float(text)
     except ValueError:
         value = math.nan
     if not sep or metric not in GATED or not math.isfinite(value):
-        raise ProjregError(f"--fail-above: expected METRIC=VALUE with METRIC in {', '.join(GATED)} and a finite "
-                           f"VALUE, got {spec!r}")  # fmt: skip
-    return metric, value
+        raise ProjregError(f"--fail-above: expected [NAME:]METRIC=VALUE with METRIC in {', '.join(GATED)} and a "
+                           f"finite VALUE, got {spec!r}")  # fmt: skip
+    if name == "":
+        raise ProjregError(f"--fail-above: empty method name before ':' in {spec!r}")
+    return metric, value, name
 
 
-def check_thresholds(report: dict, thresholds: Sequence[tuple[str, float]]) -> list[str]:
+def check_thresholds(report: dict, thresholds: Sequence[tuple[str, float, str | None]]) -> list[str]:
     """One line per model result whose metric exceeds its threshold (baselines are never gated).
 
+    A threshold with a name gates only that model, and naming a model the report lacks is an error.
     A metric that is null (no pixel behind it) passes. Gating a report without any model result
     is an error: the gate would pass without testing anything.
     """
     models = [r for r in report["results"] if r["kind"] == "model"]
     if thresholds and not models:
         raise ProjregError("--fail-above: no model was benchmarked (no --model and no shipped reference model)")
+    names = {r["name"] for r in models}
+    for _, _, name in thresholds:
+        if name is not None and name not in names:
+            raise ProjregError(f"--fail-above: no model named {name!r} in the report; "
+                               f"models: {', '.join(sorted(names))}")  # fmt: skip
     return [f"{r['name']}: {metric} {r[metric]:.4f} > {limit:g}"
-            for r in models for metric, limit in thresholds if r[metric] is not None and r[metric] > limit]  # fmt: skip
+            for r in models for metric, limit, name in thresholds
+            if name in (None, r["name"]) and r[metric] is not None and r[metric] > limit]  # fmt: skip
 
 
 def _fmt(value: float | None, scale: float = 1.0) -> str:

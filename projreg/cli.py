@@ -110,9 +110,12 @@ def bench(
     baselines: Annotated[str | None, typer.Option(help="Comma list, or none (default: dis-fast,dis-medium,"
                                                       "farneback,sift-ransac).", show_default=False)] = None,
     equalize: Annotated[bool, typer.Option("--equalize", help="Equalise histograms for the baselines.")] = False,
+    refine: Annotated[str, typer.Option(help="Geometric refinement after each model: on, off, or both "
+                                             "(two rows: NAME refined, NAME-raw).")] = "on",
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON.")] = None,
     markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.")] = None,
-    fail_above: Annotated[list[str] | None, typer.Option(help="METRIC=VALUE gate on models (repeatable).")] = None,
+    fail_above: Annotated[list[str] | None, typer.Option(help="[NAME:]METRIC=VALUE gate on models (repeatable; "
+                                                              "NAME: that model only).")] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -131,8 +134,8 @@ def bench(
                 bar.total = total
                 bar.update(done - bar.n)
 
-            report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, limit=limit,
-                                   progress=progress)  # fmt: skip
+            report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
+                                   limit=limit, progress=progress)  # fmt: skip
         if json_out is not None:
             lib.write_json(json_out, report)
         if markdown is not None:
@@ -159,6 +162,7 @@ def predict(
     model: Annotated[Path | None, typer.Option(help="Checkpoint, or `reference`; default: the shipped "
                                                     "reference model.")] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
+    refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md).")] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
@@ -171,7 +175,7 @@ def predict(
                 bar.update(done - bar.n)
 
             written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  progress=progress)  # fmt: skip
+                                  refine=refine, progress=progress)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
     if not quiet:

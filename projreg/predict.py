@@ -26,6 +26,7 @@ from projsynth.sources import list_images, load_image
 from . import ProjregError
 from .evaluate import predict_flow
 from .model.net import SSJMFlow
+from .refine import GeometricRefiner
 from .train import load_checkpoint, model_from_checkpoint, require_model
 
 NO_REFERENCE = "no shipped reference model yet; pass --model CKPT (train one with `projreg train`)"
@@ -157,6 +158,7 @@ def predict(
     viz: Path | None = None,
     model: Path | None = None,
     max_side: int = 1024,
+    refine: bool = True,
     device: torch.device | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[Path]:
@@ -168,6 +170,8 @@ def predict(
         viz: colour PNG file (file mode) or folder (folder mode); None writes none.
         model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model.
         max_side: longest side the network sees; larger pairs are resized (see ``predict_resized``).
+        refine: follow the network with the geometric refinement (``projreg.refine``), at the
+            pair's own resolution.
         device: default CUDA when available, else CPU.
         progress: called ``(done, total)`` after each pair.
 
@@ -179,12 +183,15 @@ def predict(
     jobs = plan_jobs(projected, captured, out, viz)
     device = device or default_device()
     net = load_model(resolve_checkpoint(model), device)
+    refiner = GeometricRefiner() if refine else None
     for k, job in enumerate(jobs):
         img0, img1 = _load(job.projected), _load(job.captured)
         if img0.shape != img1.shape:
             raise ProjregError(f"{job.projected} is {img0.shape[1]}x{img0.shape[0]} but {job.captured} is "
                                f"{img1.shape[1]}x{img1.shape[0]} (WxH); a pair must have one size")  # fmt: skip
         flow = predict_resized(net, img0, img1, device, max_side)
+        if refiner is not None:
+            flow = refiner.refine(img0, img1, flow)[0]
         try:
             job.out.parent.mkdir(parents=True, exist_ok=True)
             write_flow_exr(job.out, flow, np.ones(flow.shape[:2], bool), job.sample_id)

@@ -7,11 +7,13 @@ import torch
 from typer.testing import CliRunner
 
 import projreg.bench
+from projreg import ProjregError
 from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.metrics import KEYS, EPEAccumulator
 from projreg.predict import load_model
+from projreg.refine import GeometricRefiner
 from projsynth.shards import ShardReader
 
 CPU = torch.device("cpu")
@@ -63,7 +65,7 @@ def test_report_schema(report, tiny_train):
     assert [(r["name"], r["kind"]) for r in report["results"]] == [
         ("last", "model"), ("dis-medium", "baseline"), ("zero", "baseline"), ("shifted", "baseline")]  # fmt: skip
     for r in report["results"]:
-        assert set(r) == {"name", "kind", *KEYS, "ms_per_pair", "groups"}
+        assert set(r) == {"name", "kind", "refined", *KEYS, "ms_per_pair", "groups"}
         assert r["ms_per_pair"] > 0
         assert tuple(r["groups"]) == GROUPS
         assert set(r["groups"]["role"]) == ROLES
@@ -79,8 +81,8 @@ def test_report_schema(report, tiny_train):
 @pytest.mark.parametrize("name", ["last", "dis-medium"])
 def test_pooled_metrics_equal_direct_recomputation(report, tiny_train, tiny_ckpt, name):
     if name == "last":
-        model = load_model(tiny_ckpt, CPU)
-        predict = lambda a, b: predict_flow(model, a, b, CPU)  # noqa: E731
+        model, refiner = load_model(tiny_ckpt, CPU), GeometricRefiner()
+        predict = lambda a, b: refiner.refine(a, b, predict_flow(model, a, b, CPU))[0]  # noqa: E731
     else:
         predict = projreg.bench.baseline_method("dis-medium").predict
     acc = EPEAccumulator()
@@ -169,6 +171,31 @@ def test_fail_above_gates_models_only(tiny_train, tiny_ckpt, tmp_path, one_line_
     one_line_error(_cli(*base, "--fail-above", "px9=1"), "--fail-above")
     with pytest.raises(Exception, match="--fail-above"):
         parse_threshold("epe=nan")
+
+
+def test_refine_modes_name_the_rows_and_the_raw_row_is_the_network_alone(tiny_train, tiny_ckpt):
+    both = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=2, refine="both", device=CPU)
+    off = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=2, refine="off", device=CPU)
+    on = run_bench(tiny_train, models=[tiny_ckpt], baselines=["dis-fast"], limit=2, device=CPU)
+    assert [(r["name"], r["refined"]) for r in both["results"]] == [("last", True), ("last-raw", False)]
+    assert [(r["name"], r["refined"]) for r in off["results"]] == [("last", False)]
+    assert [(r["name"], r["refined"]) for r in on["results"]] == [("last", True), ("dis-fast", False)]
+    assert both["results"][1]["epe"] == off["results"][0]["epe"]
+    assert both["results"][0]["epe"] == on["results"][0]["epe"] != off["results"][0]["epe"]
+    with pytest.raises(ProjregError, match="--refine"):
+        run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=2, refine="maybe", device=CPU)
+
+
+def test_named_thresholds_gate_one_model(tiny_train, tiny_ckpt, tmp_path, one_line_error):
+    assert parse_threshold("last-raw:px3=0.5") == ("px3", 0.5, "last-raw")
+    base = ["bench", "--data", tiny_train, "--model", tiny_ckpt, "--baselines", "none", "--limit", "2",
+            "--refine", "both", "-q"]  # fmt: skip
+    result = _cli(*base, "--fail-above", "last-raw:epe=0.0001", "--fail-above", "last:epe=1e9")
+    assert result.exit_code == 1, (result.stderr, result.exception)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("projreg: fail-above: last-raw: epe"), lines
+    one_line_error(_cli(*base, "--fail-above", "nobody:epe=1"), "nobody", "last-raw")
+    one_line_error(_cli(*base, "--fail-above", ":epe=1"), "--fail-above")
 
 
 def test_markdown_has_table2_rows_and_compact_table(tiny_train, tiny_ckpt, tmp_path):

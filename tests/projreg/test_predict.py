@@ -8,6 +8,7 @@ import projreg.predict
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.predict import load_model
+from projreg.refine import GeometricRefiner
 from projsynth.flowio import flow_to_color, read_flow_exr
 from projsynth.shards import ShardReader
 
@@ -43,8 +44,9 @@ def test_file_mode_writes_the_model_flow_as_exr_and_png(pairs, tiny_ckpt, tmp_pa
     flow, valid, header = read_flow_exr(out)
     assert flow.shape == (64, 96, 2) and valid.all()
     assert header["sample_id"] == "a.png" and header["direction"] == "projected->captured"
-    # the same numbers as the model run directly on the arrays: order, channels and direction wired right
-    expected = predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU)
+    # the same numbers as the model then the refinement run directly on the arrays: order, channels and
+    # direction wired right
+    expected = GeometricRefiner().refine(img0, img1, predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU))[0]
     np.testing.assert_allclose(flow, expected, atol=1e-4)
     png = cv2.cvtColor(cv2.imread(str(viz)), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(png, flow_to_color(flow))
@@ -58,7 +60,7 @@ def test_folder_mode_pairs_by_relative_name(pairs, tiny_ckpt, tmp_path):
         _write(tmp_path / "C" / name, img1)
     out, viz = tmp_path / "out", tmp_path / "viz"
     result = _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--viz", viz,
-                  "--model", tiny_ckpt)  # fmt: skip
+                  "--model", tiny_ckpt, "--no-refine")  # fmt: skip
     assert result.exit_code == 0, (result.stderr, result.exception)
     model = load_model(tiny_ckpt, CPU)
     for name, stem, (img0, img1) in zip(names, ["x_flow", "sub/y_flow"], pairs, strict=True):
@@ -74,7 +76,8 @@ def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_p
     big0, big1 = (np.repeat(np.repeat(i, 2, axis=0), 2, axis=1) for i in (img0, img1))
     a, b = _write(tmp_path / "a.png", big0), _write(tmp_path / "b.png", big1)
     out = tmp_path / "f.exr"
-    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt, "--max-side", "96")
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt, "--max-side", "96",
+                  "--no-refine")  # fmt: skip
     assert result.exit_code == 0, (result.stderr, result.exception)
     flow, _, _ = read_flow_exr(out)
     assert flow.shape == (128, 192, 2)

@@ -1,0 +1,181 @@
+"""Geometric refinement: its parts against hand-computed values, and the whole on projsynth pairs."""
+
+import cv2
+import numpy as np
+import pytest
+
+from projreg import ProjregError
+from projreg.baselines import homography_flow
+from projreg.refine import (
+    GeometricRefiner,
+    RefineConfig,
+    alignment_score,
+    bspline_basis,
+    compose,
+    fit_bspline,
+    fit_homography,
+    warp_back,
+)
+from projsynth.shards import ShardReader
+
+from .conftest import make_shards
+
+H_TRUE = np.array([[1.02, 0.03, 4.0], [-0.02, 0.98, -3.0], [1e-4, -5e-5, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def samples(tmp_path_factory):
+    """lens, convex cylinder, concave sphere, wave, bumps at severity 2 (studio and noisy), 128 x 160."""
+    root = make_shards(tmp_path_factory.mktemp("refine") / "d", size=(128, 160), transforms="25,46,105,126,145")
+    reader = ShardReader(root)
+    try:
+        return [reader.read(k) for k in range(len(reader))]
+    finally:
+        reader.close()
+
+
+def _epe(flow, s):
+    return float(np.linalg.norm(flow - s["flow"], axis=-1)[s["valid"]].mean())
+
+
+def _coarse(s, rng):
+    """A flow like an undertrained network's: the truth plus a smooth 2-3 px bias and 20% wild outliers."""
+    h, w = s["valid"].shape
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    flow = np.where(s["valid"][..., None], s["flow"], np.nan_to_num(s["flow"]))
+    bias = np.stack([2 + np.sin(x / 23.0), -1.5 + np.cos(y / 17.0)], axis=-1)
+    wild = rng.random((h, w)) < 0.2
+    flow = flow + bias
+    flow[wild] = rng.uniform(-30, 30, (int(wild.sum()), 2))
+    return flow.astype(np.float32)
+
+
+def test_bspline_basis_is_a_partition_of_unity_and_reproduces_linear_fields():
+    B = bspline_basis(97, 7)  # [97, 7]
+    np.testing.assert_allclose(B.sum(axis=1), 1.0, atol=1e-12)
+    assert (B >= 0).all()
+    h, w = 60, 80
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    field = np.stack([0.5 + 0.03 * x - 0.02 * y, -1.0 + 0.01 * x * 0 + 0.04 * y], axis=-1)  # affine: in the span
+    fit = fit_bspline(field, np.ones((h, w)), (6, 5), step=2, ridge=1e-9)
+    np.testing.assert_allclose(fit, field, atol=1e-4)
+
+
+def test_bspline_fit_ignores_outliers_and_zero_weight_pixels():
+    h, w = 64, 96
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    field = np.stack([1 + 0.02 * x, 2 - 0.01 * y], axis=-1)
+    noisy = field.copy()
+    rng = np.random.default_rng(0)
+    bad = rng.random((h, w)) < 0.15
+    noisy[bad] += rng.uniform(-20, 20, (int(bad.sum()), 2))
+    weight = np.ones((h, w))
+    weight[:, :10] = 0
+    noisy[:, :10] = 1e3  # no weight: must not matter at all
+    fit = fit_bspline(noisy, weight, (6, 5), step=1, iterations=6)
+    assert np.abs(fit - field).max() < 0.1, np.abs(fit - field).max()
+
+
+def test_fit_homography_recovers_h_through_outliers():
+    h, w = 120, 160
+    flow = homography_flow(H_TRUE, h, w)
+    rng = np.random.default_rng(1)
+    bad = rng.random((h, w)) < 0.3
+    flow[bad] = rng.uniform(-40, 40, (int(bad.sum()), 2))
+    H = fit_homography(flow, 2, 1.0)
+    assert np.abs(homography_flow(H, h, w) - homography_flow(H_TRUE, h, w)).max() < 1e-3
+
+
+def test_fit_homography_refuses_flows_through_infinity():
+    h, w = 50, 60
+    H = np.array([[1, 0, 0], [0, 1, 0], [-0.05, 0, 1.0]])  # the line x = 20 goes to infinity
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    q = np.stack([x, y, np.ones_like(x)], -1) @ H.T
+    flow = (q[..., :2] / np.where(np.abs(q[..., 2:]) < 1e-6, 1e-6, q[..., 2:]) - np.stack([x, y], -1))
+    assert fit_homography(flow.astype(np.float32), 1, 0.5) is None
+
+
+def test_compose_chains_a_residual_and_a_base():
+    h, w = 40, 50
+    base = homography_flow(H_TRUE, h, w)
+    r = np.zeros((h, w, 2), np.float32)
+    r[...] = (2.0, -1.0)  # integer shift: remap of the base is exact at interior pixels
+    out = compose(base, r)
+    y, x = np.mgrid[0:h, 0:w]
+    expected = r[5:-5, 5:-5] + base[y[5:-5, 5:-5] - 1, x[5:-5, 5:-5] + 2]
+    np.testing.assert_allclose(out[5:-5, 5:-5], expected, atol=1e-5)
+
+
+def test_warp_back_and_alignment_score():
+    rng = np.random.default_rng(2)
+    gray0 = cv2.GaussianBlur(rng.integers(0, 256, (64, 80), dtype=np.uint8), (0, 0), 1.5)
+    shift = np.zeros((64, 80, 2), np.float32)
+    shift[...] = (3, 2)
+    gray1 = np.roll(gray0, (2, 3), axis=(0, 1))  # gray1[p + (3, 2)] = gray0[p]
+    np.testing.assert_array_equal(warp_back(gray1, shift)[5:-5, 5:-5], gray0[5:-5, 5:-5])
+    # invariant to gain and offset; a wrong flow scores far lower
+    dim = (0.5 * gray1 + 60).astype(np.uint8)
+    assert alignment_score(gray0, dim, shift) > 0.95
+    assert alignment_score(gray0, dim, np.zeros_like(shift)) < 0.5
+
+
+def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
+    rng = np.random.default_rng(3)
+    refiner = GeometricRefiner()
+    for s in samples:
+        coarse = _coarse(s, rng)
+        flow, info = refiner.refine(s["projected"], s["captured"], coarse)
+        assert flow.dtype == np.float32 and flow.shape == coarse.shape
+        name = s["params"]["transform"]["name"]
+        assert _epe(flow, s) < 0.5 and _epe(flow, s) < _epe(coarse, s) / 5, (name, _epe(flow, s), _epe(coarse, s))
+        assert set(info.scores) == {"network", "identity"}
+
+
+def test_refine_falls_back_to_the_identity_when_the_network_is_lost(samples):
+    s = samples[0]  # lens s2 studio: displacements of a few pixels
+    lost = np.full(s["flow"].shape, 60.0, np.float32)  # a constant far-off flow: a homography, but wrong
+    flow, info = GeometricRefiner().refine(s["projected"], s["captured"], lost)
+    assert info.hypothesis == "identity" and info.scores["identity"] > info.scores["network"]
+    assert _epe(flow, s) < 0.5
+
+
+def test_refine_is_deterministic_and_invariant_to_brightness(samples):
+    s = samples[3]
+    coarse = _coarse(s, np.random.default_rng(4))
+    a = GeometricRefiner().refine(s["projected"], s["captured"], coarse)[0]
+    b = GeometricRefiner().refine(s["projected"], s["captured"], coarse)[0]
+    np.testing.assert_array_equal(a, b)
+    darker = (0.7 * s["captured"].astype(np.float32) + 20).astype(np.uint8)
+    c = GeometricRefiner().refine(s["projected"], darker, coarse)[0]
+    assert _epe(c, s) < 0.5, _epe(c, s)
+
+
+def test_small_pairs_pass_through_and_bad_shapes_are_refused():
+    img = np.zeros((20, 40, 3), np.uint8)
+    flow = np.ones((20, 40, 2), np.float32)
+    out, info = GeometricRefiner().refine(img, img, flow)
+    assert info.hypothesis == "skipped"
+    np.testing.assert_array_equal(out, flow)
+    big = np.zeros((40, 40, 3), np.uint8)
+    with pytest.raises(ProjregError, match="one size"):
+        GeometricRefiner().refine(big, big, np.zeros((40, 41, 2), np.float32))
+    with pytest.raises(ProjregError, match="grid"):
+        RefineConfig(grid=(3, 8))
+    with pytest.raises(ProjregError, match="robust_px"):
+        RefineConfig(robust_px=0)
+
+
+def test_the_network_hypothesis_carries_large_displacements(samples):
+    """40 px of motion on a 128 x 160 frame: DIS from the identity cannot get there, the network's fit can."""
+    img0 = samples[5]["projected"]
+    h, w = img0.shape[:2]
+    H = np.array([[0.95, 0.05, 38.0], [-0.04, 1.0, 22.0], [2e-4, 1e-4, 1.0]])  # projected -> captured
+    img1 = cv2.warpPerspective(img0, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    gt = homography_flow(H, h, w)
+    y, x = np.mgrid[0:h, 0:w]
+    q = np.stack([x, y], axis=-1) + gt
+    s = {"flow": gt, "valid": (q[..., 0] >= 0) & (q[..., 0] <= w - 1) & (q[..., 1] >= 0) & (q[..., 1] <= h - 1)}
+    coarse = _coarse(s, np.random.default_rng(5))
+    flow, info = GeometricRefiner().refine(img0, img1, coarse)
+    assert info.hypothesis == "network" and info.scores["network"] > info.scores["identity"] + 0.1, info
+    assert _epe(flow, s) < 0.3, _epe(flow, s)
