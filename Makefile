@@ -57,7 +57,7 @@ SPREAD32 := 0,6,12,18,21,27,33,39,42,48,54,55,63,69,70,76,84,85,91,97,100,106,11
 # The reference model against the baselines on a fresh synthetic test split (all 160 transforms)
 test-bench: setup
 	$(BIN)/projsynth gen --out build/test-split --split test --pairs 1 --seed 123 --workers 2 --quiet
-	$(BIN)/projreg bench --data build/test-split --baselines $(BASELINES) --json build/test-bench.json \
+	$(BIN)/projreg bench --data build/test-split --baselines $(BASELINES) --refine both --json build/test-bench.json \
 		--markdown build/test-bench.md --quiet
 
 # ... and on real pictures it never saw: scikit-image's photographs x its artwork (bench/real_sources.py)
@@ -65,7 +65,7 @@ real-bench: setup
 	$(PY) bench/real_sources.py --out build/real
 	$(BIN)/projsynth gen --out build/real-test --natural build/real/natural --generated build/real/generated \
 		--split all --seed 5 --transforms $(SPREAD32) --workers 2 --quiet
-	$(BIN)/projreg bench --data build/real-test --baselines $(BASELINES) --json build/real-bench.json \
+	$(BIN)/projreg bench --data build/real-test --baselines $(BASELINES) --refine both --json build/real-bench.json \
 		--markdown build/real-bench.md --quiet
 
 clean:

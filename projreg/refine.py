@@ -6,10 +6,12 @@ globally, through occlusions and large displacements, but only to a few pixels (
 its short training). This stage keeps what the network is good at and takes the precision from the
 images:
 
+0. **Local contrast normalisation** of both gray images (Gaussian window): blending, daylight and
+   transparency change contrast differently across the frame, and DIS assumes it constant.
 1. **Projective fit**: a homography fitted to the network's flow (MAGSAC++ on a grid of its
    correspondences). A second hypothesis, the identity, covers pairs where the network is lost.
 2. **Photometric residual**: the captured image is warped into the projector frame by the current
-   model, and DIS optical flow (mean-normalised patches, so brightness offsets do not matter) measures
+   model, and DIS optical flow (mean-normalised patches) measures
    the remaining small residual; the homography is refitted once to ``model + residual`` and the
    residual measured again.
 3. **Smooth surface model**: the residual is fitted by a tensor-product cubic B-spline (``grid``
@@ -17,8 +19,8 @@ images:
    reweighted least squares (Cauchy weights), so DIS's noise in flat or washed-out regions is
    averaged away instead of copied.
 4. **Selection**: each hypothesis's final flow is scored by the median local normalised
-   cross-correlation (Gaussian window) between the projected image and the captured image warped
-   back by it; the best score wins (ties: the network's hypothesis).
+   cross-correlation (Gaussian window) between the normalised projected image and the normalised
+   captured image warped back by it; the best score wins (ties: the network's hypothesis).
 
 The spline cannot follow a fold or an occlusion edge sharper than its control spacing (a third of the
 frame's width); docs/model.md gives the measured effect of each step.
@@ -49,7 +51,7 @@ class RefineConfig:
     and the refitted homography; ``fit_points``: about how many grid correspondences the fits use;
     ``robust_px``: Cauchy scale of the spline's reweighting; ``ridge``: Tikhonov weight that keeps
     control points without texture under them at zero residual; ``ncc_sigma``: Gaussian window of the
-    selection score.
+    selection score; ``contrast_sigma``: Gaussian window of the local contrast normalisation.
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -60,11 +62,12 @@ class RefineConfig:
     ridge: float = 1e-3
     irls_iterations: int = 3
     ncc_sigma: float = 7.0
+    contrast_sigma: float = 16.0
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
             raise ProjregError(f"refine grid must have at least 4 x 4 control points, got {self.grid}")
-        for name in ("ransac_px", "refit_px", "robust_px", "ncc_sigma"):
+        for name in ("ransac_px", "refit_px", "robust_px", "ncc_sigma", "contrast_sigma"):
             if not getattr(self, name) > 0:
                 raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
 
@@ -102,7 +105,7 @@ class GeometricRefiner:
                                f"{projected.shape}, {captured.shape}, {flow.shape}")  # fmt: skip
         if min(h, w) < MIN_SIDE:
             return np.asarray(flow, np.float32), RefineInfo("skipped", {})
-        gray0, gray1 = to_gray(projected), to_gray(captured)
+        gray0, gray1 = (normalize_contrast(to_gray(img), self.config.contrast_sigma) for img in (projected, captured))
         step = fit_step(h, w, self.config.fit_points)
         weight = texture_weight(gray0)
         hypotheses = {"network": fit_homography(flow, step, self.config.ransac_px), "identity": np.eye(3)}
@@ -132,6 +135,19 @@ class GeometricRefiner:
     def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray) -> np.ndarray:
         """DIS flow from the projected image to the captured image warped back by ``base``."""
         return self._dis.calc(gray0, warp_back(gray1, base), None)
+
+
+def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
+    """Local contrast normalisation: ``(g - mean) / std`` over a Gaussian window, as uint8 ``128 + 40 z``.
+
+    The standard deviation is floored at 2 grey levels, so flat regions stay flat instead of turning
+    their quantisation noise into texture.
+    """
+    g = gray.astype(np.float32)
+    mean = cv2.GaussianBlur(g, (0, 0), sigma)
+    var = cv2.GaussianBlur(g * g, (0, 0), sigma) - mean * mean
+    z = (g - mean) / np.sqrt(np.maximum(var, 4.0))
+    return np.clip(128 + 40 * z, 0, 255).astype(np.uint8)
 
 
 def fit_step(h: int, w: int, points: int) -> int:

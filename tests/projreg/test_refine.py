@@ -14,6 +14,7 @@ from projreg.refine import (
     compose,
     fit_bspline,
     fit_homography,
+    normalize_contrast,
     warp_back,
 )
 from projsynth.shards import ShardReader
@@ -179,3 +180,14 @@ def test_the_network_hypothesis_carries_large_displacements(samples):
     flow, info = GeometricRefiner().refine(img0, img1, coarse)
     assert info.hypothesis == "network" and info.scores["network"] > info.scores["identity"] + 0.1, info
     assert _epe(flow, s) < 0.3, _epe(flow, s)
+
+
+def test_contrast_normalisation_removes_local_gain_and_offset():
+    rng = np.random.default_rng(6)
+    gray = cv2.GaussianBlur(rng.integers(0, 256, (80, 100), dtype=np.uint8), (0, 0), 2.0)
+    dim = (0.4 * gray + 90).astype(np.uint8)  # a washed-out copy: contrast 0.4, brighter
+    a, b = normalize_contrast(gray, 16.0), normalize_contrast(dim, 16.0)
+    inner = (slice(20, -20), slice(20, -20))  # away from the border's reflected window
+    assert np.abs(a[inner].astype(int) - b[inner].astype(int)).mean() < 3.0
+    assert np.abs(a[inner].astype(int) - 128).mean() > 15  # and the texture is still there
+    np.testing.assert_array_equal(normalize_contrast(np.full((30, 40), 77, np.uint8), 16.0), 128)
