@@ -51,7 +51,7 @@ class RefineConfig:
     and the refitted homography; ``fit_points``: about how many grid correspondences the fits use;
     ``robust_px``: Cauchy scale of the spline's reweighting; ``ridge``: Tikhonov weight that keeps
     control points without texture under them at zero residual; ``ncc_sigma``: Gaussian window of the
-    selection score; ``contrast_sigma``: Gaussian window of the local contrast normalisation.
+    selection score; ``contrast_sigma``: Gaussian window of the local contrast normalisation (0: none).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -67,9 +67,11 @@ class RefineConfig:
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
             raise ProjregError(f"refine grid must have at least 4 x 4 control points, got {self.grid}")
-        for name in ("ransac_px", "refit_px", "robust_px", "ncc_sigma", "contrast_sigma"):
+        for name in ("ransac_px", "refit_px", "robust_px", "ncc_sigma"):
             if not getattr(self, name) > 0:
                 raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
+        if not self.contrast_sigma >= 0:
+            raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
 
 
 @dataclass(frozen=True)
@@ -113,14 +115,22 @@ class GeometricRefiner:
         for name, H in hypotheses.items():
             if H is None:
                 continue
-            cand = self._from_homography(gray0, gray1, H, weight, step)
+            cand = self.hypothesis(gray0, gray1, H, weight, step)[2]
             scores[name] = alignment_score(gray0, gray1, cand, self.config.ncc_sigma)
             if best is None or scores[name] > scores[best[0]]:
                 best = (name, cand)
         assert best is not None  # the identity always exists
         return best[1], RefineInfo(best[0], scores)
 
-    def _from_homography(self, gray0, gray1, H, weight, step) -> np.ndarray:
+    def hypothesis(
+        self, gray0: np.ndarray, gray1: np.ndarray, H: np.ndarray, weight: np.ndarray, step: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Steps 2-3 from one starting homography, on normalised gray images.
+
+        Returns:
+            ``(base, residual, flow)``, float32 ``(H, W, 2)`` each: the refitted homography's flow, the
+            DIS residual measured on it, and the refined flow ``compose(base, spline(residual))``.
+        """
         cfg = self.config
         h, w = gray0.shape
         base = homography_flow(H, h, w)  # [H, W, 2]
@@ -130,7 +140,7 @@ class GeometricRefiner:
             base = homography_flow(H2, h, w)
         residual = self._residual(gray0, gray1, base)  # [H, W, 2], in the projector frame
         smooth = fit_bspline(residual, weight, cfg.grid, step, cfg.robust_px, cfg.ridge, cfg.irls_iterations)
-        return compose(base, smooth)
+        return base, residual, compose(base, smooth)
 
     def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray) -> np.ndarray:
         """DIS flow from the projected image to the captured image warped back by ``base``."""
@@ -141,8 +151,10 @@ def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
     """Local contrast normalisation: ``(g - mean) / std`` over a Gaussian window, as uint8 ``128 + 40 z``.
 
     The standard deviation is floored at 2 grey levels, so flat regions stay flat instead of turning
-    their quantisation noise into texture.
+    their quantisation noise into texture. ``sigma`` 0 returns ``gray`` unchanged.
     """
+    if sigma == 0:
+        return gray
     g = gray.astype(np.float32)
     mean = cv2.GaussianBlur(g, (0, 0), sigma)
     var = cv2.GaussianBlur(g * g, (0, 0), sigma) - mean * mean

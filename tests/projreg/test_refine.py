@@ -164,6 +164,8 @@ def test_small_pairs_pass_through_and_bad_shapes_are_refused():
         RefineConfig(grid=(3, 8))
     with pytest.raises(ProjregError, match="robust_px"):
         RefineConfig(robust_px=0)
+    with pytest.raises(ProjregError, match="contrast_sigma"):
+        RefineConfig(contrast_sigma=-1)
 
 
 def test_the_network_hypothesis_carries_large_displacements(samples):
@@ -191,3 +193,4 @@ def test_contrast_normalisation_removes_local_gain_and_offset():
     assert np.abs(a[inner].astype(int) - b[inner].astype(int)).mean() < 3.0
     assert np.abs(a[inner].astype(int) - 128).mean() > 15  # and the texture is still there
     np.testing.assert_array_equal(normalize_contrast(np.full((30, 40), 77, np.uint8), 16.0), 128)
+    assert normalize_contrast(gray, 0) is gray  # 0: off

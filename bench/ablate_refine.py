@@ -1,0 +1,87 @@
+"""Ablation of projreg.refine: what each step adds to the network's flow (docs/model.md's table).
+
+    python bench/ablate_refine.py --data DIR [--model CKPT] [--every 4 | --limit N]
+
+For every evaluated sample the network runs once; the stages are then computed from its flow with
+the refiner's own functions and scored with the pooled EPE of ``projreg.metrics`` (overall and the
+three magnitude buckets), beside SIFT + RANSAC.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from projreg.baselines import homography_flow, make_baseline, to_gray
+from projreg.evaluate import predict_flow, sample_indices
+from projreg.metrics import EPEAccumulator
+from projreg.predict import load_model, resolve_checkpoint
+from projreg.refine import (
+    GeometricRefiner,
+    RefineConfig,
+    compose,
+    fit_homography,
+    fit_step,
+    normalize_contrast,
+    texture_weight,
+)
+from projsynth.shards import ShardReader
+
+ROWS = ("network alone", "homography fitted to it", "+ residual and refit (homography only)",
+        "+ DIS residual as is", "+ B-spline residual instead (network hypothesis only)",
+        "identity hypothesis only (no network)", "both hypotheses without contrast normalisation",
+        "both hypotheses, NCC selection (the default)", "sift-ransac (baseline)")  # fmt: skip
+
+
+def stages(refiner: GeometricRefiner, plain: GeometricRefiner, sift, projected, captured, net) -> list[np.ndarray]:
+    """The flow after each row of ``ROWS``, in order."""
+    cfg = refiner.config
+    h, w = net.shape[:2]
+    step = fit_step(h, w, cfg.fit_points)
+    gray0, gray1 = (normalize_contrast(to_gray(img), cfg.contrast_sigma) for img in (projected, captured))
+    weight = texture_weight(gray0)
+    H = fit_homography(net, step, cfg.ransac_px)
+    H = np.eye(3) if H is None else H
+    base, residual, spline = refiner.hypothesis(gray0, gray1, H, weight, step)
+    identity = refiner.hypothesis(gray0, gray1, np.eye(3), weight, step)[2]
+    return [net, homography_flow(H, h, w), base, compose(base, residual), spline, identity,
+            plain.refine(projected, captured, net)[0], refiner.refine(projected, captured, net)[0],
+            sift.predict(projected, captured)]  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, required=True)
+    ap.add_argument("--model", default="reference")
+    ap.add_argument("--every", type=int, default=None, help="every N-th sample")
+    ap.add_argument("--limit", type=int, default=None, help="N samples spread evenly (as projreg bench)")
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    device = torch.device("cpu")
+    model = load_model(resolve_checkpoint(args.model), device)
+    refiner, plain = GeometricRefiner(), GeometricRefiner(RefineConfig(contrast_sigma=0))
+    sift = make_baseline("sift-ransac")
+    reader = ShardReader(args.data)
+    n = len(reader)
+    indices = list(range(0, n, args.every)) if args.every else sample_indices(n, args.limit)
+    accs = [EPEAccumulator() for _ in ROWS]
+    try:
+        for k in indices:
+            s = reader.read(k)
+            net = predict_flow(model, s["projected"], s["captured"], device)
+            for acc, flow in zip(accs, stages(refiner, plain, sift, s["projected"], s["captured"], net), strict=True):
+                acc.add(flow, s["flow"], s["valid"])
+    finally:
+        reader.close()
+    print(f"{args.data}: {len(indices)} of {n} samples; EPE / s0-10 / s10-40 / s40+ (px)")
+    for name, acc in zip(ROWS, accs, strict=True):
+        r = acc.result()
+        cells = ("-" if r[m] is None else f"{r[m]:.2f}" for m in ("epe", "s0-10", "s10-40", "s40+"))
+        print(f"| {name} | {' / '.join(cells)} |")
+
+
+if __name__ == "__main__":
+    main()
