@@ -32,12 +32,13 @@ from projsynth.shards import ShardReader
 
 ROWS = ("network alone", "homography fitted to it", "+ residual and refit (homography only)",
         "+ DIS residual as is", "+ B-spline residual instead (network hypothesis only)",
-        "identity hypothesis only (no network)", "both hypotheses without contrast normalisation",
-        "both hypotheses, NCC selection (the default)", "sift-ransac (baseline)")  # fmt: skip
+        "identity hypothesis only (no network)", "both hypotheses, plain images only",
+        "both hypotheses, normalised images only", "both x both images, NCC selection (the default)",
+        "sift-ransac (baseline)")  # fmt: skip
 
 
-def stages(refiner: GeometricRefiner, plain: GeometricRefiner, sift, projected, captured, net) -> list[np.ndarray]:
-    """The flow after each row of ``ROWS``, in order."""
+def stages(refiner: GeometricRefiner, variants: list[GeometricRefiner], sift, projected, captured, net):
+    """The flow after each row of ``ROWS``, in order (``variants``: the two single-image-kind refiners)."""
     cfg = refiner.config
     h, w = net.shape[:2]
     step = fit_step(h, w, cfg.fit_points)
@@ -48,7 +49,7 @@ def stages(refiner: GeometricRefiner, plain: GeometricRefiner, sift, projected, 
     base, residual, spline = refiner.hypothesis(gray0, gray1, H, weight, step)
     identity = refiner.hypothesis(gray0, gray1, np.eye(3), weight, step)[2]
     return [net, homography_flow(H, h, w), base, compose(base, residual), spline, identity,
-            plain.refine(projected, captured, net)[0], refiner.refine(projected, captured, net)[0],
+            *(v.refine(projected, captured, net)[0] for v in variants), refiner.refine(projected, captured, net)[0],
             sift.predict(projected, captured)]  # fmt: skip
 
 
@@ -62,7 +63,8 @@ def main() -> None:
     torch.set_num_threads(2)
     device = torch.device("cpu")
     model = load_model(resolve_checkpoint(args.model), device)
-    refiner, plain = GeometricRefiner(), GeometricRefiner(RefineConfig(contrast_sigma=0))
+    refiner = GeometricRefiner()
+    variants = [GeometricRefiner(RefineConfig(contrast_sigma=0)), GeometricRefiner(RefineConfig(plain_pass=False))]
     sift = make_baseline("sift-ransac")
     reader = ShardReader(args.data)
     n = len(reader)
@@ -72,7 +74,8 @@ def main() -> None:
         for k in indices:
             s = reader.read(k)
             net = predict_flow(model, s["projected"], s["captured"], device)
-            for acc, flow in zip(accs, stages(refiner, plain, sift, s["projected"], s["captured"], net), strict=True):
+            flows = stages(refiner, variants, sift, s["projected"], s["captured"], net)
+            for acc, flow in zip(accs, flows, strict=True):
                 acc.add(flow, s["flow"], s["valid"])
     finally:
         reader.close()

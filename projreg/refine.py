@@ -18,9 +18,11 @@ images:
    control points), weighted by the projected image's texture and made robust by iteratively
    reweighted least squares (Cauchy weights), so DIS's noise in flat or washed-out regions is
    averaged away instead of copied.
-4. **Selection**: each hypothesis's final flow is scored by the median local normalised
-   cross-correlation (Gaussian window) between the normalised projected image and the normalised
-   captured image warped back by it; the best score wins (ties: the network's hypothesis).
+4. **Selection**: steps 1-3 run from both hypotheses, on the normalised and on the plain gray
+   images (normalisation helps under blending and transparency, hurts some large, well-lit
+   motions); each of the four flows is scored by the median local normalised cross-correlation
+   (Gaussian window) between the normalised projected image and the normalised captured image
+   warped back by it; the best score wins (ties: the first tried, the network's on normalised images).
 
 The spline cannot follow a fold or an occlusion edge sharper than its control spacing (a third of the
 frame's width); docs/model.md gives the measured effect of each step.
@@ -51,7 +53,9 @@ class RefineConfig:
     and the refitted homography; ``fit_points``: about how many grid correspondences the fits use;
     ``robust_px``: Cauchy scale of the spline's reweighting; ``ridge``: Tikhonov weight that keeps
     control points without texture under them at zero residual; ``ncc_sigma``: Gaussian window of the
-    selection score; ``contrast_sigma``: Gaussian window of the local contrast normalisation (0: none).
+    selection score (always on normalised images); ``contrast_sigma``: Gaussian window of the local
+    contrast normalisation (0: none); ``plain_pass``: also try both hypotheses on the images without
+    normalisation (four candidates instead of two).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -63,6 +67,7 @@ class RefineConfig:
     irls_iterations: int = 3
     ncc_sigma: float = 7.0
     contrast_sigma: float = 16.0
+    plain_pass: bool = True
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -76,10 +81,13 @@ class RefineConfig:
 
 @dataclass(frozen=True)
 class RefineInfo:
-    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity" or "skipped")
-    and the selection score of every hypothesis tried (median local NCC, in [-1, 1])."""
+    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity" or "skipped"),
+    ``images`` ("normalised" or "plain": the gray images the residual was measured on), and the
+    selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"`` (median local NCC, in
+    [-1, 1])."""
 
     hypothesis: str
+    images: str
     scores: dict[str, float]
 
 
@@ -106,21 +114,29 @@ class GeometricRefiner:
             raise ProjregError(f"refine needs projected, captured (H, W, 3) and flow (H, W, 2) of one size, got "
                                f"{projected.shape}, {captured.shape}, {flow.shape}")  # fmt: skip
         if min(h, w) < MIN_SIDE:
-            return np.asarray(flow, np.float32), RefineInfo("skipped", {})
-        gray0, gray1 = (normalize_contrast(to_gray(img), self.config.contrast_sigma) for img in (projected, captured))
-        step = fit_step(h, w, self.config.fit_points)
-        weight = texture_weight(gray0)
-        hypotheses = {"network": fit_homography(flow, step, self.config.ransac_px), "identity": np.eye(3)}
+            return np.asarray(flow, np.float32), RefineInfo("skipped", "", {})
+        cfg = self.config
+        plain = (to_gray(projected), to_gray(captured))
+        normalised = tuple(normalize_contrast(g, cfg.contrast_sigma) for g in plain)
+        images = {"normalised": normalised}
+        if cfg.plain_pass and cfg.contrast_sigma > 0:
+            images["plain"] = plain
+        step = fit_step(h, w, cfg.fit_points)
+        hypotheses = {"network": fit_homography(flow, step, cfg.ransac_px), "identity": np.eye(3)}
         best, scores = None, {}
-        for name, H in hypotheses.items():
-            if H is None:
-                continue
-            cand = self.hypothesis(gray0, gray1, H, weight, step)[2]
-            scores[name] = alignment_score(gray0, gray1, cand, self.config.ncc_sigma)
-            if best is None or scores[name] > scores[best[0]]:
-                best = (name, cand)
+        for kind, (gray0, gray1) in images.items():
+            weight = texture_weight(gray0)
+            for name, H in hypotheses.items():
+                if H is None:
+                    continue
+                cand = self.hypothesis(gray0, gray1, H, weight, step)[2]
+                key = f"{name}/{kind}"
+                scores[key] = alignment_score(*normalised, cand, cfg.ncc_sigma)
+                if best is None or scores[key] > scores[best[0]]:
+                    best = (key, cand)
         assert best is not None  # the identity always exists
-        return best[1], RefineInfo(best[0], scores)
+        name, kind = best[0].split("/")
+        return best[1], RefineInfo(name, kind, scores)
 
     def hypothesis(
         self, gray0: np.ndarray, gray1: np.ndarray, H: np.ndarray, weight: np.ndarray, step: int

@@ -129,14 +129,15 @@ def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
         assert flow.dtype == np.float32 and flow.shape == coarse.shape
         name = s["params"]["transform"]["name"]
         assert _epe(flow, s) < 0.5 and _epe(flow, s) < _epe(coarse, s) / 5, (name, _epe(flow, s), _epe(coarse, s))
-        assert set(info.scores) == {"network", "identity"}
+        assert set(info.scores) == {f"{h}/{i}" for h in ("network", "identity") for i in ("normalised", "plain")}
 
 
 def test_refine_falls_back_to_the_identity_when_the_network_is_lost(samples):
     s = samples[0]  # lens s2 studio: displacements of a few pixels
     lost = np.full(s["flow"].shape, 60.0, np.float32)  # a constant far-off flow: a homography, but wrong
     flow, info = GeometricRefiner().refine(s["projected"], s["captured"], lost)
-    assert info.hypothesis == "identity" and info.scores["identity"] > info.scores["network"]
+    assert info.hypothesis == "identity"
+    assert max(info.scores["identity/normalised"], info.scores["identity/plain"]) > info.scores["network/plain"]
     assert _epe(flow, s) < 0.5
 
 
@@ -180,7 +181,9 @@ def test_the_network_hypothesis_carries_large_displacements(samples):
     s = {"flow": gt, "valid": (q[..., 0] >= 0) & (q[..., 0] <= w - 1) & (q[..., 1] >= 0) & (q[..., 1] <= h - 1)}
     coarse = _coarse(s, np.random.default_rng(5))
     flow, info = GeometricRefiner().refine(img0, img1, coarse)
-    assert info.hypothesis == "network" and info.scores["network"] > info.scores["identity"] + 0.1, info
+    assert info.hypothesis == "network", info
+    identity = max(info.scores["identity/normalised"], info.scores["identity/plain"])
+    assert info.scores[f"network/{info.images}"] > identity + 0.1
     assert _epe(flow, s) < 0.3, _epe(flow, s)
 
 
