@@ -11,9 +11,8 @@ images:
 1. **Projective fit**: a homography fitted to the network's flow (MAGSAC++ on a grid of its
    correspondences). A second hypothesis, the identity, covers pairs where the network is lost.
 2. **Photometric residual**: the captured image is warped into the projector frame by the current
-   model, and DIS optical flow (mean-normalised patches) measures
-   the remaining small residual; the homography is refitted once to ``model + residual`` and the
-   residual measured again.
+   model, and DIS optical flow (mean-normalised patches) measures the remaining small residual;
+   the homography is refitted once to ``model + residual`` and the residual measured again.
 3. **Smooth surface model**: the residual is fitted by a tensor-product cubic B-spline (``grid``
    control points), weighted by the projected image's texture and made robust by iteratively
    reweighted least squares (Cauchy weights), so DIS's noise in flat or washed-out regions is
