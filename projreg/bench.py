@@ -11,8 +11,9 @@ overall and per group of samples:
 
 Models run through the geometric refinement of :mod:`projreg.refine` unless ``refine="off"``;
 ``refine="both"`` reports each model twice, refined under its name and the raw network as
-``NAME-raw``. Groups appear in the order of their first sample. ``ms_per_pair`` is the median wall-clock time of
-one ``predict`` call over the samples, after one untimed warm-up call on the first sample.
+``NAME-raw``. Groups appear in the order of their first sample. ``ms_per_pair`` is the median
+wall-clock time of one ``predict`` call over the samples, after one untimed warm-up call on the
+first sample.
 The report schema is documented in docs/projreg-cli.md.
 
 Convention: flow forward, projected -> captured, ``(H, W, 2)`` in pixels, ``flow[y, x] = (u, v)``.
@@ -188,6 +189,8 @@ def run_bench(
         result per method (see docs/projreg-cli.md).
     """
     data = Path(data)
+    if refine not in REFINE_MODES:
+        raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
     try:
         reader = ShardReader(data)
     except ProjsynthError as e:

@@ -184,6 +184,8 @@ def test_refine_modes_name_the_rows_and_the_raw_row_is_the_network_alone(tiny_tr
     assert both["results"][0]["epe"] == on["results"][0]["epe"] != off["results"][0]["epe"]
     with pytest.raises(ProjregError, match="--refine"):
         run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=2, refine="maybe", device=CPU)
+    with pytest.raises(ProjregError, match="--refine"):  # checked even when no model would use it
+        run_bench(tiny_train, models=[], baselines=["dis-fast"], limit=2, refine="Both", device=CPU)
 
 
 def test_named_thresholds_gate_one_model(tiny_train, tiny_ckpt, tmp_path, one_line_error):
