@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -140,7 +141,7 @@ class GeometricRefiner:
     def hypothesis(
         self, gray0: np.ndarray, gray1: np.ndarray, H: np.ndarray, weight: np.ndarray, step: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Steps 2-3 from one starting homography, on normalised gray images.
+        """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain).
 
         Returns:
             ``(base, residual, flow)``, float32 ``(H, W, 2)`` each: the refitted homography's flow, the
@@ -200,10 +201,17 @@ def fit_homography(flow: np.ndarray, step: int, threshold: float) -> np.ndarray 
     return H if H is not None and proper_homography(H, h, w) else None
 
 
+@lru_cache(maxsize=4)
+def pixel_maps(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel x and y coordinates of an ``h x w`` frame, float32 ``(h, w)`` each; cached, read-only."""
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    x.flags.writeable = y.flags.writeable = False
+    return x, y
+
+
 def warp_back(gray1: np.ndarray, flow: np.ndarray) -> np.ndarray:
     """The captured image seen in the projector frame: ``out[p] = gray1[p + flow(p)]`` (bilinear)."""
-    h, w = flow.shape[:2]
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    x, y = pixel_maps(*flow.shape[:2])
     return cv2.remap(gray1, x + flow[..., 0], y + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -213,8 +221,7 @@ def compose(base: np.ndarray, residual: np.ndarray) -> np.ndarray:
     If ``warp_back(gray1, base)`` matches the projected image under ``residual``, the pair matches
     under the returned flow: ``r(p) + base(p + r(p))``.
     """
-    h, w = base.shape[:2]
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    x, y = pixel_maps(*base.shape[:2])
     moved = cv2.remap(base, x + residual[..., 0], y + residual[..., 1], cv2.INTER_LINEAR,
                       borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
     return (residual + moved).astype(np.float32)
