@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO ?= demo
 
-.PHONY: setup test lint demo bench reference-model test-bench real-bench clean
+.PHONY: clean-kernels setup test lint demo bench reference-model test-bench real-bench clean
 
 setup: $(VENV)/.installed
 
@@ -70,3 +70,9 @@ real-bench: setup
 
 clean:
 	rm -rf $(VENV) $(DEMO) build .pytest_cache .ruff_cache
+	find projsynth projreg \( -name '*.nbi' -o -name '*.nbc' \) -delete
+
+# numba's cache is keyed on each kernel's own file: after editing a helper in another module
+# (e.g. surface.py, inlined into scene.py's kernels) drop the compiled kernels with this.
+clean-kernels:
+	find projsynth projreg \( -name '*.nbi' -o -name '*.nbc' \) -delete

@@ -2,6 +2,9 @@
 
 * ``cache=True``: compiled once per machine and kept beside the module (or in numba's user cache when
   the package directory is read-only), so worker processes load the machine code instead of compiling.
+  numba keys that cache on the kernel's own source file only: after editing a helper that another
+  module's kernels inline (``surface.py``, ``lens.py``), ``make clean-kernels`` drops the stale code.
+  (Installing another version writes every file anew, so their stamps change.)
 * No ``fastmath``: IEEE semantics, so a sample's bytes do not depend on how the compiler reorders sums.
 * ``error_model="numpy"``: ``x / 0.0`` gives ``inf`` or ``nan`` as in numpy instead of raising.
 """

@@ -137,26 +137,26 @@ def distort1(x: float, y: float, k1: float, k2: float, p1: float, p2: float, k3:
     return x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
 
 
-@jit
+@jit(inline=True)
 def undistort1(xd: float, yd: float, k1: float, k2: float, p1: float, p2: float, k3: float, scale: float,
                fold_r2: float, x0: float, y0: float) -> tuple[float, float, bool]:  # fmt: skip
     """:func:`undistort` of one point: Newton on the 2 x 2 Jacobian, from the guess ``(x0, y0)``."""
     x, y = x0, y0
-    for _ in range(_NEWTON_ITERS):
+    for step in range(_NEWTON_ITERS + 1):
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dradial = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))  # d radial / d (x or y), over x or y
-        ex = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
+        ex = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd  # distort1(x, y) - (xd, yd)
         ey = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
-        if max(abs(ex), abs(ey)) * scale < UNDISTORT_TOL_PX * 0.01:
+        if max(abs(ex), abs(ey)) * scale < UNDISTORT_TOL_PX * 0.01 or step == _NEWTON_ITERS:
             break
+        dradial = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))  # d radial / d (x or y), over x or y
         j11 = radial + x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
         j22 = radial + y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
         j12 = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
         det = j11 * j22 - j12 * j12
         x, y = x - (j22 * ex - j12 * ey) / det, y - (j11 * ey - j12 * ex) / det
-    rx, ry = distort1(x, y, k1, k2, p1, p2, k3)
-    ok = np.hypot(rx - xd, ry - yd) * scale < UNDISTORT_TOL_PX and x * x + y * y < fold_r2
+    tol = UNDISTORT_TOL_PX / scale  # the residual at the returned point, in px
+    ok = ex * ex + ey * ey < tol * tol and r2 < fold_r2
     return x, y, ok
 
 
@@ -165,9 +165,9 @@ def ray1(lens: tuple, u: float, v: float, sx: float, sy: float) -> tuple[float, 
     """Unit lens-frame ray ``(dx, dy, dz)`` of pixel ``(u, v)``, whether it undistorts exactly, and the
     undistortion shift ``(x - x_d, y - y_d)`` in normalised coordinates (0 where it failed).
 
-    ``(sx, sy)``: a guess of that shift (a neighbouring pixel's, or 0): Newton starts there. The shift
-    varies slowly, so a neighbour's saves about half the iterations; the result does not depend on it
-    beyond the 1e-8 px stopping tolerance (the distortion is one-to-one inside the fold radius).
+    ``(sx, sy)``: a guess of that shift (extrapolated from the neighbouring pixels', or 0): Newton starts
+    there. The shift varies slowly, so a good guess saves most iterations; the result does not depend on
+    it beyond the 1e-8 px stopping tolerance (the distortion is one-to-one inside the fold radius).
     """
     xd, yd = (u - lens[2]) / lens[0], (v - lens[3]) / lens[1]
     x, y, ok = xd, yd, True

@@ -15,6 +15,9 @@ noise, and the camera's response curve ``L^(1/response)``. Intensities are on th
 
 from __future__ import annotations
 
+from functools import lru_cache
+from statistics import NormalDist
+
 import cv2
 import numpy as np
 
@@ -44,7 +47,7 @@ def composite(
         ``(H, W, 3)`` uint8 captured image.
     """
     if blend == "paper":
-        noise = rng.standard_normal(background.shape, dtype=np.float32)  # scaled inside the kernel
+        noise = gaussian_noise(rng, background.shape)  # scaled inside the kernel
         return _paper(np.ascontiguousarray(warped, np.float32), np.ascontiguousarray(background), noise,
                       *(float(p[k]) for k in _PAPER))  # fmt: skip
     if blend != "physical":
@@ -74,8 +77,44 @@ def _paper(warped, background, noise, beta, contrast, brightness, gamma, mu, sig
     return out
 
 
+def gaussian_noise(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Standard normal noise, float32 of ``shape``: 16 random bits per value through a quantile table.
+
+    Each value is ``normal_table()[b]`` for 16 bits ``b`` of the generator's raw 64-bit output (low bits
+    first), i.e. the normal distribution quantised to 65,536 equally likely levels (tails cut at
+    +-4.3 sigma; the table is scaled to unit variance). About 3x faster than numpy's float32
+    ziggurat, which was the simulation's largest stage after the ray casts (docs/benchmarks.md); for
+    sensor noise added to 8-bit images the quantisation (a level spacing under 4e-5 sigma near 0) is
+    invisible.
+    """
+    n = int(np.prod(shape))
+    raw = rng.bit_generator.random_raw(-(-n // 4))
+    return _lookup16(raw, normal_table(), n).reshape(shape)
+
+
+@lru_cache(maxsize=1)
+def normal_table() -> np.ndarray:
+    """The 65,536 normal quantiles at ``(i + 0.5) / 65536``, scaled to unit variance, float32, read-only."""
+    inv = NormalDist().inv_cdf
+    table = np.array([inv((i + 0.5) / 65536) for i in range(65536)])
+    table = (table / np.sqrt(np.mean(table**2))).astype(np.float32)
+    table.flags.writeable = False
+    return table
+
+
+@jit
+def _lookup16(raw, table, n):  # noqa: ANN001, ANN202
+    out = np.empty(4 * raw.size, np.float32)
+    for i in range(raw.size):
+        word = raw[i]
+        for j in range(4):
+            out[4 * i + j] = table[word & np.uint64(0xFFFF)]
+            word >>= np.uint64(16)
+    return out[:n]
+
+
 def _gaussian(rng: np.random.Generator, shape: tuple, mu: float, sigma: float) -> np.ndarray:
-    noise = rng.standard_normal(shape, dtype=np.float32)
+    noise = gaussian_noise(rng, shape)
     noise *= np.float32(sigma)
     noise += np.float32(mu)
     return noise

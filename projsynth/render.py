@@ -69,11 +69,23 @@ def render(
     flow = _flow(fm.uv, valid.ravel(), h, w)
 
     alpha = alpha_field((h, w), photometry["alpha"], photometry["alpha_var"], rng)
-    rgba = np.dstack([projected, np.rint(alpha * 255).astype(np.uint8)])
+    rgba = _with_alpha(np.ascontiguousarray(projected), alpha)
     xy, lit = backward(scene, grid)
     warped = sample_where(rgba, xy, lit).reshape(h, w, 4)
     captured = composite(blend, warped, background, photometry, rng)
     return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, lit))
+
+
+@jit
+def _with_alpha(rgb, alpha):  # noqa: ANN001, ANN202
+    """``(H, W, 4)`` uint8: the image and ``round(255 * alpha)`` (alpha in [0, 1]) as its fourth channel."""
+    h, w = rgb.shape[0], rgb.shape[1]
+    out = np.empty((h, w, 4), np.uint8)
+    for y in range(h):
+        for x in range(w):
+            out[y, x, 0], out[y, x, 1], out[y, x, 2] = rgb[y, x, 0], rgb[y, x, 1], rgb[y, x, 2]
+            out[y, x, 3] = np.uint8(np.rint(alpha[y, x] * np.float32(255.0)))
+    return out
 
 
 @jit

@@ -20,7 +20,7 @@ import numpy as np
 
 from .jit import jit
 from .lens import Lens, in_frame1, project1, ray1
-from .surface import Surface, hit1, never_hidden1, single1
+from .surface import CYLINDER_CONVEX, SPHERE_CONVEX, Surface, convex_sees1, hit1, never_hidden1, single1
 
 # Why a projected pixel is invalid (bit flags, recorded per sample as pixel counts).
 MISS, OUT_OF_FRAME, OCCLUDED, LENS, NEAR_EDGE = 1, 2, 4, 8, 16
@@ -99,6 +99,8 @@ def _points(pts: np.ndarray) -> np.ndarray:
 @jit(inline=True)
 def _visible1(g, terms, ex, ey, ez, x, y, z):  # noqa: ANN001, ANN202
     """True where the first surface hit from the eye ``e`` towards the point ``X`` is ``X`` itself."""
+    if g[0] == CYLINDER_CONVEX or g[0] == SPHERE_CONVEX:
+        return convex_sees1(g, ex, ey, ez, x, y, z)
     rx, ry, rz = x - ex, y - ey, z - ez
     dist = np.sqrt(rx * rx + ry * ry + rz * rz)
     if dist > 0:
@@ -115,9 +117,10 @@ def _forward_many(proj, cam, R, C, g, terms, pts):  # noqa: ANN001, ANN202
     uv, reason = np.empty((2, n)), np.empty(n, np.uint8)
     always_seen = never_hidden1(g, C[0], C[1], C[2])
     t1 = t2 = np.nan  # the previous two rays' distances: neighbouring pixels hit close together
-    sx = sy = 0.0  # the previous pixel's undistortion shift
+    sx1 = sy1 = sx2 = sy2 = 0.0  # the previous two pixels' undistortion shifts, the same way
     for i in range(n):
-        dx, dy, dz, lens_ok, sx, sy = ray1(proj, pts[0, i], pts[1, i], sx, sy)
+        dx, dy, dz, lens_ok, sx, sy = ray1(proj, pts[0, i], pts[1, i], 2.0 * sx1 - sx2, 2.0 * sy1 - sy2)
+        sx1, sy1, sx2, sy2 = (sx, sy, sx1, sy1) if lens_ok else (0.0, 0.0, 0.0, 0.0)
         t = hit1(g, terms, 0.0, 0.0, 0.0, dx, dy, dz, 2.0 * t1 - t2)
         hit = np.isfinite(t)
         t1, t2 = (t, t1) if hit else (np.nan, np.nan)
@@ -146,9 +149,10 @@ def _backward_many(cam, proj, R, C, g, terms, pts):  # noqa: ANN001, ANN202
     xy, lit = np.empty((2, n)), np.empty(n, np.bool_)
     always_lit = never_hidden1(g, 0.0, 0.0, 0.0)
     t1 = t2 = np.nan
-    sx = sy = 0.0
+    sx1 = sy1 = sx2 = sy2 = 0.0
     for i in range(n):
-        cx, cy, cz, lens_ok, sx, sy = ray1(cam, pts[0, i], pts[1, i], sx, sy)
+        cx, cy, cz, lens_ok, sx, sy = ray1(cam, pts[0, i], pts[1, i], 2.0 * sx1 - sx2, 2.0 * sy1 - sy2)
+        sx1, sy1, sx2, sy2 = (sx, sy, sx1, sy1) if lens_ok else (0.0, 0.0, 0.0, 0.0)
         dx = R[0, 0] * cx + R[1, 0] * cy + R[2, 0] * cz  # R^T: camera -> world
         dy = R[0, 1] * cx + R[1, 1] * cy + R[2, 1] * cz
         dz = R[0, 2] * cx + R[1, 2] * cy + R[2, 2] * cz

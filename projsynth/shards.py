@@ -65,8 +65,15 @@ def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
             capt = f.create_dataset("captured", (n, h, w, 3), np.uint8, chunks=(1, h, w, 3), **_IMAGE_OPTS)
             valid = f.create_dataset("valid", (n, h, w), bool, chunks=(1, h, w), **_IMAGE_OPTS)
             exr = f.create_dataset("flow_exr", (n,), h5py.vlen_dtype(np.uint8), track_times=False)
+            shared = None  # (frame, its compressed chunk): the samples of a pair and role share the frame
             for i, s in enumerate(samples):
-                proj[i], capt[i], valid[i] = s.projected, s.captured, s.valid
+                if shared is not None and s.projected is shared[0]:
+                    proj.id.write_direct_chunk((i, 0, 0, 0), shared[2], filter_mask=shared[1])
+                else:
+                    proj[i] = s.projected
+                    proj.flush()  # the chunk may still sit in HDF5's chunk cache, where direct reads miss it
+                    shared = (s.projected, *proj.id.read_direct_chunk((i, 0, 0, 0)))
+                capt[i], valid[i] = s.captured, s.valid
                 exr[i] = np.frombuffer(encode_flow_exr(s.flow, s.valid, s.id), np.uint8)
             text = h5py.string_dtype()
             f.create_dataset("sample_id", data=[s.id for s in samples], dtype=text, track_times=False)

@@ -89,24 +89,27 @@ def _pack(kind: str, rotation: np.ndarray, origin: np.ndarray, params: dict) -> 
     if kind not in KINDS:
         raise ValueError(f"unknown surface kind {kind!r}")
     code = KINDS.index(kind)
-    radius, terms, bound, slope = 0.0, np.zeros((0, 4)), 0.0, 0.0
+    radius, terms, bound, slope, curvature = 0.0, np.zeros((0, 4)), 0.0, 0.0, 0.0
     if code in (CYLINDER_CONVEX, CYLINDER_CONCAVE, SPHERE_CONVEX, SPHERE_CONCAVE):
         radius = float(params["radius"])
-    elif code == WAVE:
+    elif code == WAVE:  # bounds of |h|, |grad h| and of h's second derivative along any unit direction
         terms = np.asarray(params["waves"], dtype=np.float64).reshape(-1, 4)
         amp, kx, ky, _ = terms.T
         bound, slope = float(np.abs(amp).sum()), float((np.abs(amp) * np.hypot(kx, ky)).sum())
-    elif code == BUMPS:
+        curvature = float((np.abs(amp) * (kx * kx + ky * ky)).sum())
+    elif code == BUMPS:  # a Gaussian's slope peaks at e^-0.5 / s, its curvature at 1 / s^2 (the centre)
         terms = np.asarray(params["bumps"], dtype=np.float64).reshape(-1, 4)
         amp, _, _, sigma = terms.T
         bound, slope = float(np.abs(amp).sum()), float((np.abs(amp) / sigma).sum() * np.exp(-0.5))
-    geometry = (code, *np.asarray(rotation, np.float64).ravel(), *np.asarray(origin, np.float64), radius, bound, slope)
+        curvature = float((np.abs(amp) / (sigma * sigma)).sum())
+    geometry = (code, *np.asarray(rotation, np.float64).ravel(), *np.asarray(origin, np.float64), radius, bound, slope,
+                curvature)  # fmt: skip
     return tuple(float(x) for x in geometry), np.ascontiguousarray(terms)
 
 
 # Per-ray kernels (numba). A packed surface is the pair made by _pack: a tuple of floats ``g`` (kind
-# code, world_from_local rotation row-major, origin, radius, height-field bound and slope), passed by
-# value, and the (M, 4) height-field ``terms``.
+# code, world_from_local rotation row-major, origin, radius, height-field bound, slope and curvature
+# bounds), passed by value, and the (M, 4) height-field ``terms``.
 
 
 @jit(inline=True)
@@ -131,7 +134,7 @@ def hit1(g, terms, ox, oy, oz, dx, dy, dz, t0):  # noqa: ANN001, ANN201
         t = -oz / dz if dz > 1e-12 else np.inf
         return t if t > 0 else np.inf
     if kind == WAVE or kind == BUMPS:
-        return _heightfield(kind, terms, g[14], g[15], ox, oy, oz, dx, dy, dz, t0)
+        return _heightfield(kind, terms, g[14], g[15], g[16], ox, oy, oz, dx, dy, dz, t0)
     return _quadric(kind, g[13], ox, oy, oz, dx, dy, dz)
 
 
@@ -147,13 +150,26 @@ def single1(g, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN201
     if kind == PLANE:  # a single crossing, if the eye is on the front side at all
         return oz < 0
     if kind == WAVE or kind == BUMPS:
-        return dz > g[15] * np.hypot(dx, dy) * 1.0001
+        return dz > g[15] * np.sqrt(dx * dx + dy * dy) * 1.0001
     if kind == CYLINDER_CONCAVE or kind == SPHERE_CONCAVE:
         # seen from inside the full quadric, its inner surface never hides itself
         rz = oz + g[13]
         r2 = ox * ox + rz * rz + (oy * oy if kind == SPHERE_CONCAVE else 0.0)
         return r2 < g[13] * g[13]
     return False
+
+
+@jit(inline=True)
+def convex_sees1(g, ex, ey, ez, x, y, z):  # noqa: ANN001, ANN201
+    """For a surface point ``X`` of a convex cylinder or sphere: whether the eye ``e`` sees it, without a cast.
+
+    The full cylinder or sphere is a convex body and the surface a part of its boundary, so the segment
+    from the eye meets the boundary first at ``X`` exactly when it enters the body there, that is when
+    it runs against the outward normal at ``X`` (the front side). An eye inside the body sees nothing.
+    """
+    ex, ey, ez, dx, dy, dz = _to_local(g, ex, ey, ez, x - ex, y - ey, z - ez)
+    px, py, pz = ex + dx, ey + dy, ez + dz  # X in the local frame; the centre is (0, y or 0, radius)
+    return dx * px + (dy * py if g[0] == SPHERE_CONVEX else 0.0) + dz * (pz - g[13]) < 0
 
 
 @jit(inline=True)
@@ -192,7 +208,7 @@ def _quadric(kind, radius, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN202
     return np.inf
 
 
-@jit
+@jit(inline=True)
 def _field(kind, terms, x, y):  # noqa: ANN001, ANN202
     """Height and gradient ``(h, h_x, h_y)`` of a wave or bumps field at local ``(x, y)``."""
     h = hx = hy = 0.0
@@ -213,28 +229,34 @@ def _field(kind, terms, x, y):  # noqa: ANN001, ANN202
     return h, hx, hy
 
 
-@jit
+@jit(inline=True)
 def _g(kind, terms, ox, oy, oz, dx, dy, dz, t):  # noqa: ANN001, ANN202
     """``g(t) = o_z + t d_z - h(o_xy + t d_xy)`` and ``g'(t)``."""
     h, hx, hy = _field(kind, terms, ox + t * dx, oy + t * dy)
     return oz + t * dz - h, dz - hx * dx - hy * dy
 
 
-@jit
-def _heightfield(kind, terms, bound, slope, ox, oy, oz, dx, dy, dz, t0):  # noqa: ANN001, ANN202
+@jit(inline=True)
+def _heightfield(kind, terms, bound, slope, curvature, ox, oy, oz, dx, dy, dz, t0):  # noqa: ANN001, ANN202
     """First root of ``g`` inside the slab ``|z| <= bound``.
 
     Rays steeper than the surface (``d_z > slope * |d_xy|``) meet it exactly once: bracketed Newton.
+    There ``g' >= m = d_z - slope |d_xy| > 0`` and ``|g''| <= curvature |d_xy|^2``, so a Newton step from
+    ``t`` lands within ``curvature |d_xy|^2 g(t)^2 / (2 m^3)`` of the root: when that bound already
+    meets the tolerance the step is returned without evaluating the field again (from a neighbouring
+    ray's guess, one field evaluation per ray instead of two).
     The others march with Lipschitz-safe steps ``t += -g / (d_z + slope |d_xy|)``, which can never pass
     the first root, then Newton polishes; rays that do not converge (near-grazing) count as misses.
     """
     if not (dz > 1e-9 and oz < -bound):  # the viewer must be in front of the slab, looking in
         return np.inf
     lo, hi = (-bound - oz) / dz, (bound - oz) / dz
-    dxy = np.hypot(dx, dy)
+    dxy = np.sqrt(dx * dx + dy * dy)  # (np.hypot guards against overflow, at twice the cost)
     if dz > slope * dxy * 1.0001:  # certified single crossing, as in single1
         a, b = lo, hi  # g(a) <= 0 <= g(b)
         t = t0 if a <= t0 <= b else min(max(-oz / dz, a), b)  # the guess, else the mean plane z = 0
+        m = dz - slope * dxy
+        newton_gain = 0.5 * curvature * dxy * dxy / (m * m * m) * (dz + slope * dxy)  # |g| after / g^2 before
         for _ in range(60):
             g, gp = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
             if abs(g) < _HIT_TOL:
@@ -244,6 +266,8 @@ def _heightfield(kind, terms, bound, slope, ox, oy, oz, dx, dy, dz, t0):  # noqa
             elif g > 0:
                 b = t
             tn = t - g / gp
+            if a <= tn <= b and newton_gain * g * g < 0.5 * _HIT_TOL:
+                return tn
             t = tn if a <= tn <= b else 0.5 * (a + b)
         return np.inf
     lipschitz = dz + slope * dxy

@@ -133,3 +133,20 @@ def test_sampling_rejects_bad_shapes_and_gives_zero_at_non_finite_positions():
         sample_where(img, np.zeros((2, 3)), np.ones(2, bool))
     with pytest.raises(ValueError, match="uint8"):
         sample_bilinear(img[..., :3], np.zeros(1), np.zeros(1))
+
+
+def test_gaussian_noise_is_standard_normal_and_reproducible():
+    from statistics import NormalDist
+
+    from projsynth.photometric import gaussian_noise
+
+    x = gaussian_noise(np.random.default_rng(3), (200, 300, 3))
+    assert x.shape == (200, 300, 3) and x.dtype == np.float32
+    assert abs(x.mean()) < 0.01 and abs(x.std() - 1) < 0.01
+    assert abs(np.mean(x**4) - 3) < 0.05  # kurtosis of a normal, not of a uniform (1.8)
+    for q in (0.01, 0.1, 0.5, 0.9, 0.99):  # quantiles within 0.02 sigma of the normal's
+        assert abs(np.quantile(x, q) - NormalDist().inv_cdf(q)) < 0.02
+    assert np.abs(x).max() < 4.4
+    np.testing.assert_array_equal(gaussian_noise(np.random.default_rng(3), (200, 300, 3)), x)
+    odd = gaussian_noise(np.random.default_rng(3), (7,))  # sizes that are not a multiple of 4
+    np.testing.assert_array_equal(odd, x.ravel()[:7])

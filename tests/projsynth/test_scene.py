@@ -116,3 +116,24 @@ def test_ray_arrays_with_wrong_shapes_are_rejected():
         intersect(surface, np.zeros((3, 2)), np.zeros((3, 5)))
     with pytest.raises(ValueError, match="points must be"):
         forward(_simple_scene("plane", {}), np.zeros((3, 4)))
+
+
+@pytest.mark.parametrize("kind", ["cylinder_convex", "sphere_convex"])
+@pytest.mark.parametrize("baseline_deg", [20.0, 50.0])
+def test_convex_visibility_without_a_cast_matches_the_ray_cast(kind, baseline_deg):
+    from projsynth.lens import pixels_to_rays
+
+    scene = _simple_scene(kind, {"radius": 0.3}, baseline_deg=baseline_deg)
+    grid = pixel_grid(H, W)
+    fm = forward(scene, grid)  # occlusion decided by the outward-normal test
+    dirs, _ = pixels_to_rays(scene.projector, grid[0], grid[1])
+    t, hit = intersect(scene.surface, np.zeros((3, 1)), dirs)
+    X = dirs[:, hit] * t[hit]
+    ray = X - scene.C[:, None]
+    dist = np.linalg.norm(ray, axis=0)
+    tc, _ = intersect(scene.surface, scene.C[:, None], ray / dist)
+    seen = np.isfinite(tc) & (tc > dist * (1 - 1e-7))  # the camera's first hit is the point itself
+    occluded = (fm.reason[hit] & OCCLUDED) > 0
+    considered = (fm.reason[hit] | OCCLUDED) == OCCLUDED  # hit, in frame, lens fine: visibility decides
+    assert considered.sum() > 1000 and (~seen[considered]).sum() > 20
+    np.testing.assert_array_equal(occluded[considered], ~seen[considered])
