@@ -23,7 +23,7 @@ from projsynth.generate import single_threaded
 
 STAGES = {
     dataset: ("make_scene",),
-    render: ("forward", "alpha_field", "backward", "sample_where", "composite", "_stats"),
+    render: ("forward", "alpha_field", "backward", "composite", "_stats"),  # composite samples the frame too
 }
 
 

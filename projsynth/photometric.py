@@ -28,17 +28,21 @@ BLENDS = ("paper", "physical")
 
 def composite(
     blend: str,
-    warped: np.ndarray,
+    image: np.ndarray,
+    xy: np.ndarray,
+    lit: np.ndarray,
     background: np.ndarray,
     p: dict[str, float],
     rng: np.random.Generator,
 ) -> np.ndarray:
-    """Combine warped projected light and the background into the captured image.
+    """Light the scene with the projector and combine it with the background into the captured image.
 
     Args:
         blend: ``"paper"`` or ``"physical"``.
-        warped: ``(H, W, 4)`` float32 projected image and its transparency, sampled in the camera frame,
-            0-255 (0 where unlit); the paper's ``a`` is channel 3 / 255.
+        image: ``(H, W, 4)`` uint8 projector frame and its transparency (the paper's ``a`` = channel 3 / 255).
+        xy, lit: the backward map of the camera's ``H x W`` pixels, row-major: ``(2, H*W)`` projector
+            positions and a ``(H*W,)`` mask of lit pixels (see ``scene.backward``). The frame is sampled
+            there with :func:`sample_where` (0 where unlit): ``P_w`` and ``a`` in the module docstring.
         background: ``(H, W, 3)`` uint8 scene image in the camera frame.
         p: drawn photometric parameters (see ``transforms._CONDITIONS``).
         rng: the sample's generator (noise).
@@ -46,12 +50,17 @@ def composite(
     Returns:
         ``(H, W, 3)`` uint8 captured image.
     """
-    if blend == "paper":
-        noise = gaussian_noise(rng, background.shape)  # scaled inside the kernel
-        return _paper(np.ascontiguousarray(warped, np.float32), np.ascontiguousarray(background), noise,
+    h, w = background.shape[:2]
+    if blend == "paper":  # sampling, blend and noise in one pass over the pixels
+        xy, lit = _positions(xy, lit)
+        if lit.size != h * w:
+            raise ValueError(f"composite needs one position per camera pixel ({h * w}), got {lit.size}")
+        raw = rng.bit_generator.random_raw(-(-h * w * 3 // 4))  # the bits of gaussian_noise(rng, (h, w, 3))
+        return _paper(_rgba(image), xy[0], xy[1], lit, np.ascontiguousarray(background), raw, normal_table(),
                       *(float(p[k]) for k in _PAPER))  # fmt: skip
     if blend != "physical":
         raise ValueError(f"unknown blend {blend!r}")
+    warped = sample_where(image, xy, lit).reshape(h, w, 4)
     out = _physical(warped[..., :3], warped[..., 3:] / 255.0, background.astype(np.float32), p, rng)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
@@ -60,21 +69,34 @@ _PAPER = ("beta", "contrast", "brightness", "gamma", "noise_mu", "noise_sigma")
 
 
 @jit
-def _paper(warped, background, noise, beta, contrast, brightness, gamma, mu, sigma):  # noqa: ANN001, ANN202
-    """The paper's blend, pixel by pixel in float32, plus ``mu + sigma * noise``, rounded and clipped to uint8."""
+def _paper(image, xs, ys, lit, background, raw, table, beta, contrast, brightness, gamma, mu, sigma):  # noqa: ANN001, ANN202
+    """The paper's blend, pixel by pixel in float32, of the frame sampled at ``(xs, ys)`` where ``lit``
+    (:func:`_bilinear4`), plus ``mu + sigma * noise`` (noise: ``table`` at 16-bit slices of ``raw``, as
+    :func:`gaussian_noise`), rounded and clipped to uint8."""
     h, w = background.shape[0], background.shape[1]
     out = np.empty((h, w, 3), np.uint8)
     beta, contrast, brightness = np.float32(beta), np.float32(contrast), np.float32(brightness)
     gamma, mu, sigma = np.float32(gamma), np.float32(mu), np.float32(sigma)
-    one, full = np.float32(1.0), np.float32(255.0)
+    zero, full = np.float32(0.0), np.float32(255.0)
     for y in range(h):
         for x in range(w):
-            wt = beta * (warped[y, x, 3] / full)
-            for c in range(3):
-                fg = contrast * warped[y, x, c] + brightness
-                v = wt * fg + (one - wt) * gamma * np.float32(background[y, x, c]) + (noise[y, x, c] * sigma + mu)
-                out[y, x, c] = min(max(np.rint(v), 0.0), 255.0)
+            i = y * w + x
+            r = g = b = a = zero
+            if lit[i] and np.isfinite(xs[i]) and np.isfinite(ys[i]):
+                r, g, b, a = _bilinear4(image, xs[i], ys[i])
+            wt = beta * (a / full)
+            for c, fg in ((0, r), (1, g), (2, b)):
+                out[y, x, c] = _blend1(wt, fg, background[y, x, c], raw, table, 3 * i + c, contrast, brightness, gamma,
+                                       mu, sigma)  # fmt: skip
     return out
+
+
+@jit(inline=True)
+def _blend1(wt, fg, bg, raw, table, k, contrast, brightness, gamma, mu, sigma):  # noqa: ANN001, ANN202
+    """One channel of the paper's blend plus noise value ``k``, as uint8 (float32 throughout)."""
+    noise = table[(raw[k >> 2] >> np.uint64(16 * (k & 3))) & np.uint64(0xFFFF)]
+    v = wt * (contrast * fg + brightness) + (np.float32(1.0) - wt) * gamma * np.float32(bg) + (noise * sigma + mu)
+    return np.uint8(min(max(np.rint(v), 0.0), 255.0))
 
 
 def gaussian_noise(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
@@ -154,11 +176,16 @@ def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
 
 def sample_where(image: np.ndarray, xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """:func:`sample_bilinear` at ``xy`` ``(2, N)`` where ``mask`` ``(N,)`` is true, 0 elsewhere."""
+    xy, mask = _positions(xy, mask)
+    return _sample_where(_rgba(image), xy[0], xy[1], mask)
+
+
+def _positions(xy: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     xy = np.ascontiguousarray(xy, np.float64)
     mask = np.ascontiguousarray(mask, np.bool_)
     if xy.ndim != 2 or xy.shape[0] != 2 or mask.shape != (xy.shape[1],):
-        raise ValueError(f"sample_where needs positions (2, N) and a mask (N,), got {xy.shape} and {mask.shape}")
-    return _sample_where(_rgba(image), xy[0], xy[1], mask)
+        raise ValueError(f"sampling needs positions (2, N) and a mask (N,), got {xy.shape} and {mask.shape}")
+    return xy, mask
 
 
 def _rgba(image: np.ndarray) -> np.ndarray:
@@ -169,20 +196,30 @@ def _rgba(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+@jit(inline=True)
+def _bilinear4(image, x, y):  # noqa: ANN001, ANN202
+    """The four channels of ``image`` at finite ``(x, y)``, exact bilinear weights, float32, border-clamped."""
+    h, w = image.shape[0], image.shape[1]
+    x, y = min(max(x, 0.0), w - 1.0), min(max(y, 0.0), h - 1.0)
+    x0, y0 = min(int(x), w - 2), min(int(y), h - 2)  # x >= 0, so truncation is floor
+    fx, fy = np.float32(x - x0), np.float32(y - y0)
+    return (_lerp2(image, x0, y0, 0, fx, fy), _lerp2(image, x0, y0, 1, fx, fy), _lerp2(image, x0, y0, 2, fx, fy),
+            _lerp2(image, x0, y0, 3, fx, fy))  # fmt: skip
+
+
+@jit(inline=True)
+def _lerp2(image, x0, y0, c, fx, fy):  # noqa: ANN001, ANN202
+    top = np.float32(image[y0, x0, c])
+    top += (np.float32(image[y0, x0 + 1, c]) - top) * fx
+    bottom = np.float32(image[y0 + 1, x0, c])
+    bottom += (np.float32(image[y0 + 1, x0 + 1, c]) - bottom) * fx
+    return top + (bottom - top) * fy
+
+
 @jit
 def _sample_where(image, xs, ys, mask):  # noqa: ANN001, ANN202
-    h, w = image.shape[0], image.shape[1]
     out = np.zeros((xs.size, 4), np.float32)
     for i in range(xs.size):
-        if not (mask[i] and np.isfinite(xs[i]) and np.isfinite(ys[i])):  # nan would index anywhere
-            continue
-        x, y = min(max(xs[i], 0.0), w - 1.0), min(max(ys[i], 0.0), h - 1.0)
-        x0, y0 = min(int(x), w - 2), min(int(y), h - 2)  # x >= 0, so truncation is floor
-        fx, fy = np.float32(x - x0), np.float32(y - y0)
-        for c in range(4):
-            top = np.float32(image[y0, x0, c])
-            top += (np.float32(image[y0, x0 + 1, c]) - top) * fx
-            bottom = np.float32(image[y0 + 1, x0, c])
-            bottom += (np.float32(image[y0 + 1, x0 + 1, c]) - bottom) * fx
-            out[i, c] = top + (bottom - top) * fy
+        if mask[i] and np.isfinite(xs[i]) and np.isfinite(ys[i]):  # nan would index anywhere
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = _bilinear4(image, xs[i], ys[i])
     return out

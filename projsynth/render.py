@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from .jit import jit
-from .photometric import composite, sample_where
+from .photometric import composite
 from .scene import MISS, NEAR_EDGE, OCCLUDED, REASONS, Scene, backward, forward, pixel_grid
 
 # Valid pixels this close (projector px) to an occluded or missed one are dropped: there the camera's
@@ -71,8 +71,7 @@ def render(
     alpha = alpha_field((h, w), photometry["alpha"], photometry["alpha_var"], rng)
     rgba = _with_alpha(np.ascontiguousarray(projected), alpha)
     xy, lit = backward(scene, grid)
-    warped = sample_where(rgba, xy, lit).reshape(h, w, 4)
-    captured = composite(blend, warped, background, photometry, rng)
+    captured = composite(blend, rgba, xy, lit, background, photometry, rng)
     return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, lit))
 
 
