@@ -282,3 +282,30 @@ def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
         assert r0["projected"].shape == (48, 64, 3) and not np.array_equal(r0["projected"], r1["projected"])
     finally:
         reader.close()
+
+
+def _read_in_child(reader, k, queue):
+    queue.put(reader.read(k, with_params=False)["flow"].sum())
+
+
+def test_reader_decodes_on_a_thread_names_a_bad_flow_and_survives_a_fork(planar_ds, tmp_path):
+    import multiprocessing as mp
+    import shutil
+
+    copy = tmp_path / "ds"
+    shutil.copytree(planar_ds, copy)
+    with h5py.File(copy / "shard-00000.h5", "r+") as f:
+        f["flow_exr"][1] = np.frombuffer(b"not an exr file" * 10, np.uint8)
+    reader = ShardReader(copy)
+    try:
+        first = reader.read(0)
+        with pytest.raises(ProjsynthError, match=r"shard-00000\.h5: sample 1 unreadable \(not a valid OpenEXR"):
+            reader.read(1)
+        np.testing.assert_array_equal(reader.read(0)["flow"], first["flow"])  # the decoder thread lives on
+        queue = mp.get_context("fork").Queue()
+        child = mp.get_context("fork").Process(target=_read_in_child, args=(reader, 0, queue))
+        child.start()
+        assert queue.get(timeout=60) == first["flow"].sum()  # a fresh decoder thread in the child
+        child.join()
+    finally:
+        reader.close()
