@@ -94,7 +94,7 @@ def _paper(image, xs, ys, lit, background, raw, table, beta, contrast, brightnes
 @jit(inline=True)
 def _blend1(wt, fg, bg, raw, table, k, contrast, brightness, gamma, mu, sigma):  # noqa: ANN001, ANN202
     """One channel of the paper's blend plus noise value ``k``, as uint8 (float32 throughout)."""
-    noise = table[(raw[k >> 2] >> np.uint64(16 * (k & 3))) & np.uint64(0xFFFF)]
+    noise = _normal1(raw, table, k)
     v = wt * (contrast * fg + brightness) + (np.float32(1.0) - wt) * gamma * np.float32(bg) + (noise * sigma + mu)
     return np.uint8(min(max(np.rint(v), 0.0), 255.0))
 
@@ -126,13 +126,16 @@ def normal_table() -> np.ndarray:
 
 @jit
 def _lookup16(raw, table, n):  # noqa: ANN001, ANN202
-    out = np.empty(4 * raw.size, np.float32)
-    for i in range(raw.size):
-        word = raw[i]
-        for j in range(4):
-            out[4 * i + j] = table[word & np.uint64(0xFFFF)]
-            word >>= np.uint64(16)
-    return out[:n]
+    out = np.empty(n, np.float32)
+    for k in range(n):
+        out[k] = _normal1(raw, table, k)
+    return out
+
+
+@jit(inline=True)
+def _normal1(raw, table, k):  # noqa: ANN001, ANN202
+    """Noise value ``k``: ``table`` at bits ``16 (k mod 4) ..`` of raw word ``k // 4``."""
+    return table[(raw[k >> 2] >> np.uint64(16 * (k & 3))) & np.uint64(0xFFFF)]
 
 
 def _gaussian(rng: np.random.Generator, shape: tuple, mu: float, sigma: float) -> np.ndarray:
