@@ -245,8 +245,9 @@ def _heightfield(kind, terms, bound, slope, curvature, ox, oy, oz, dx, dy, dz, t
     ``t`` lands within ``curvature |d_xy|^2 g(t)^2 / (2 m^3)`` of the root: when that bound already
     meets the tolerance the step is returned without evaluating the field again (from a neighbouring
     ray's guess, one field evaluation per ray instead of two).
-    The others march with Lipschitz-safe steps ``t += -g / (d_z + slope |d_xy|)``, which can never pass
-    the first root, then Newton polishes; rays that do not converge (near-grazing) count as misses.
+    The others march with steps that can never pass the first root (the longer of the Lipschitz step
+    ``-g / (d_z + slope |d_xy|)`` and the curvature step, see the loop), then Newton polishes; rays that
+    do not converge (near-grazing) count as misses.
     """
     if not (dz > 1e-9 and oz < -bound):  # the viewer must be in front of the slab, looking in
         return np.inf
@@ -270,15 +271,19 @@ def _heightfield(kind, terms, bound, slope, curvature, ox, oy, oz, dx, dy, dz, t
                 return tn
             t = tn if a <= tn <= b else 0.5 * (a + b)
         return np.inf
-    lipschitz = dz + slope * dxy
+    lipschitz, bend = dz + slope * dxy, curvature * dxy * dxy  # |g'| <= lipschitz, |g''| <= bend
     t = lo
     for step in range(_MAX_SAFE_STEPS):
-        g, _ = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
+        g, gp = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
         if g > -_NEAR:
             break
         if step == _MAX_SAFE_STEPS - 1:
             return np.inf
-        t -= g / lipschitz
+        # Two safe steps, the longer wins: g stays below 0 for s < -g / lipschitz, and below the
+        # parabola g + g' s + bend s^2 / 2 until its first root (written without cancellation), which
+        # near a simple root is Newton's step.
+        curved = -2.0 * g / (gp + np.sqrt(gp * gp - 2.0 * bend * g))
+        t += max(-g / lipschitz, curved if np.isfinite(curved) else 0.0)
     for _ in range(4):  # within _NEAR of the first root only a tangent ray could reach a later one
         g, gp = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)
         if gp > 1e-12:
