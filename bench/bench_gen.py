@@ -2,10 +2,14 @@
 
 Usage: python bench/bench_gen.py [--size 384x512] [--samples 64]
 
+With 2 workers each run also pays two process start-ups (imports and the numba cache, about 1 s), so
+small runs understate steady-state throughput: use ``--samples 512`` for that.
+
 All figures come from one run so their ratios are comparable:
 * gen 1 / 2 workers: ``projsynth.generate.generate`` end to end (samples/s).
 * floor: per sample, decode two PNG sources + ``cv2.remap`` + EXR encode + HDF5 write, i.e. what any
   generator writing this format must do; the ratio gen/floor is the cost of the simulation itself.
+  Measured on one core and on two (two processes, each half the samples, started together).
 * peak RSS of a worker rendering and writing one shard (``ru_maxrss`` of a child process).
 * random read: one sample (both images + flow EXR decode) from a finished dataset, wall and CPU time.
 """
@@ -38,7 +42,24 @@ def _gen_rate(plan, shard_size: int, workers: int) -> float:
         return plan.num_samples / (time.perf_counter() - t)
 
 
-def _floor_rate(plan, n: int) -> float:
+def _floor_worker(plan, n: int, barrier, results) -> None:  # noqa: ANN001
+    results.put(_floor_rate(plan, n, barrier))
+
+
+def _floor_rate_2cores(plan, n: int) -> float:
+    """The floor in two processes at once (both start their timed loop together): summed samples/s."""
+    ctx = mp.get_context("spawn")
+    barrier, results = ctx.Barrier(2), ctx.Queue()
+    procs = [ctx.Process(target=_floor_worker, args=(plan, n // 2, barrier, results)) for _ in range(2)]
+    for p in procs:
+        p.start()
+    rates = [results.get() for _ in procs]
+    for p in procs:
+        p.join()
+    return sum(rates)
+
+
+def _floor_rate(plan, n: int, barrier=None) -> float:  # noqa: ANN001
     h, w = plan.size
     nat, gen, _ = source_images(plan, 0)
     with tempfile.TemporaryDirectory() as d:
@@ -47,6 +68,8 @@ def _floor_rate(plan, n: int) -> float:
         mx, my = xs * 0.97 + 3.3, ys * 1.02 - 2.1
         flow = np.dstack([mx - xs, my - ys]).astype(np.float32)
         valid = np.ones((h, w), bool)
+        if barrier is not None:
+            barrier.wait()
         t = time.perf_counter()
         with h5py.File(Path(d) / "floor.h5", "w") as f:
             opts = {"compression": "lzf", "chunks": (1, h, w, 3)}
@@ -88,10 +111,13 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=64, help="samples per measurement (even)")
     args = ap.parse_args()
     size = parse_size(args.size)
-    half = args.samples // 2
-    # transforms spread evenly over every family
-    plan = resolve_plan(size=size, seed=0, split="train", pairs=1, blend="paper",
-                        transforms=",".join(str(i) for i in np.linspace(0, 159, half).astype(int)))  # fmt: skip
+    # up to 64 transforms spread evenly over every family; more samples = more pairs
+    per_role = min(args.samples // 2, 64)
+    spread = ",".join(str(i) for i in np.linspace(0, 159, per_role).astype(int))
+    plan = resolve_plan(size=size, seed=0, split="train", pairs=max(1, args.samples // (2 * per_role)), blend="paper",
+                        transforms=spread)  # fmt: skip
+    one_pair = resolve_plan(size=size, seed=0, split="train", pairs=1, blend="paper", transforms=spread)
+    half = one_pair.num_samples // 2
     make_sample(plan, 0)  # warm caches and imports
     print(f"machine: {platform.machine()} {mp.cpu_count()} cores, python {platform.python_version()}")
     shard = 16  # several shards per worker, so 2 workers stay busy to the end
@@ -99,13 +125,15 @@ def main() -> None:
     r1 = _gen_rate(plan, shard, 1)
     r2 = _gen_rate(plan, shard, 2)
     fl = _floor_rate(plan, plan.num_samples)
+    fl2 = _floor_rate_2cores(plan, plan.num_samples)
     print(f"gen  1 worker : {r1:6.1f} samples/s")
     print(f"gen  2 workers: {r2:6.1f} samples/s  ({r2 / r1:.2f}x of 1 worker)")
     print(f"floor 1 core  : {fl:6.1f} samples/s  (gen 1 worker is {fl / r1:.1f}x slower than the floor)")
+    print(f"floor 2 cores : {fl2:6.1f} samples/s  (gen 2 workers are {fl2 / r2:.1f}x slower than the floor)")
     with mp.get_context("spawn").Pool(1) as pool:
-        peak = pool.apply(_child_peak, ((plan, Path(tempfile.mkdtemp()), half, 0, plan.config_hash()),))
+        peak = pool.apply(_child_peak, ((one_pair, Path(tempfile.mkdtemp()), half, 0, one_pair.config_hash()),))
     print(f"peak RSS of one worker writing a {half}-sample shard: {peak / 1024:.0f} MiB")
-    wall, cpu = _read_ms(plan, half)
+    wall, cpu = _read_ms(one_pair, half)
     print(f"random read (images + EXR decode): {wall:.2f} ms median of 50 ({cpu:.2f} ms CPU, both threads)")
 
 
