@@ -104,7 +104,8 @@ def _visible1(g, terms, ex, ey, ez, x, y, z):  # noqa: ANN001, ANN202
     rx, ry, rz = x - ex, y - ey, z - ez
     dist = np.sqrt(rx * rx + ry * ry + rz * rz)
     if dist > 0:
-        rx, ry, rz = rx / dist, ry / dist, rz / dist
+        inv = 1.0 / dist
+        rx, ry, rz = rx * inv, ry * inv, rz * inv
     if single1(g, ex, ey, ez, rx, ry, rz):
         return True
     t = hit1(g, terms, ex, ey, ez, rx, ry, rz, dist)

@@ -192,20 +192,19 @@ def _quadric(kind, radius, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN202
     disc = b * b - a * c
     if not (disc >= 0 and a > 1e-15):
         return np.inf
-    q = -(b + np.copysign(np.sqrt(disc), b))  # numerically stable pair of roots: q / a and c / q
-    r0, r1 = q / a, c / q
-    r0 = r0 if np.isfinite(r0) else np.inf
-    r1 = r1 if np.isfinite(r1) else np.inf
-    for t in (min(r0, r1), max(r0, r1)):  # the first root on the front side
-        # at o + t d: (d . outward normal) = b + t a up to a positive factor, height = oc_z + t d_z;
-        # the front side of a concave surface is its inside
-        dot = b + t * a
-        z = ocz + t * dz
-        facing = dot < 0 if convex else dot > 0
-        on_half = z <= 0 if convex else z >= 0
-        if np.isfinite(t) and t > 1e-9 and on_half and facing:
-            return t
-    return np.inf
+    # The roots are q / a and c / q (numerically stable). Only one can be a front-side hit: on a convex
+    # surface the entry into the body (the smaller root), on a concave one the exit (the larger).
+    q = -(b + np.copysign(np.sqrt(disc), b))
+    t = q / a if (q < 0) == convex else c / q  # q / a - c / q = (q^2 - a c) / (a q) has the sign of q
+    if not np.isfinite(t):
+        return np.inf
+    # at o + t d: (d . outward normal) = b + t a up to a positive factor, height = oc_z + t d_z;
+    # the front side of a concave surface is its inside
+    dot = b + t * a
+    z = ocz + t * dz
+    facing = dot < 0 if convex else dot > 0
+    on_half = z <= 0 if convex else z >= 0
+    return t if t > 1e-9 and on_half and facing else np.inf
 
 
 @jit(inline=True)
@@ -251,11 +250,12 @@ def _heightfield(kind, terms, bound, slope, curvature, ox, oy, oz, dx, dy, dz, t
     """
     if not (dz > 1e-9 and oz < -bound):  # the viewer must be in front of the slab, looking in
         return np.inf
-    lo, hi = (-bound - oz) / dz, (bound - oz) / dz
+    idz = 1.0 / dz
+    lo, hi = (-bound - oz) * idz, (bound - oz) * idz
     dxy = np.sqrt(dx * dx + dy * dy)  # (np.hypot guards against overflow, at twice the cost)
     if dz > slope * dxy * 1.0001:  # certified single crossing, as in single1
         a, b = lo, hi  # g(a) <= 0 <= g(b)
-        t = t0 if a <= t0 <= b else min(max(-oz / dz, a), b)  # the guess, else the mean plane z = 0
+        t = t0 if a <= t0 <= b else min(max(-oz * idz, a), b)  # the guess, else the mean plane z = 0
         m = dz - slope * dxy
         newton_gain = 0.5 * curvature * dxy * dxy / (m * m * m) * (dz + slope * dxy)  # |g| after / g^2 before
         for _ in range(60):
