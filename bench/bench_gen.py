@@ -56,7 +56,7 @@ def _floor_rate_2cores(plan, n: int) -> float:
     procs = [ctx.Process(target=_floor_worker, args=(plan, n // 2, barrier, results)) for _ in range(2)]
     for p in procs:
         p.start()
-    rates = [results.get() for _ in procs]
+    rates = [results.get(timeout=1800) for _ in procs]  # a crashed child raises queue.Empty, not a hang
     for p in procs:
         p.join()
     return sum(rates)

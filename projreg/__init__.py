@@ -1,6 +1,6 @@
 """projreg: the SSJM registration network: train, benchmark and apply it to projector-camera pairs."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 class ProjregError(Exception):

@@ -6,7 +6,7 @@ projected -> captured, on the projected grid: ``flow[y, x] = (u, v)`` means proj
 ``(x, y)`` is seen at camera pixel ``(x + u, y + v)``.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 FORMAT_VERSION = 1
 

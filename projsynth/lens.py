@@ -156,7 +156,7 @@ def undistort1(xd: float, yd: float, k1: float, k2: float, p1: float, p2: float,
         j12 = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
         det = j11 * j22 - j12 * j12
         x, y = x - (j22 * ex - j12 * ey) / det, y - (j11 * ey - j12 * ex) / det
-    tol = UNDISTORT_TOL_PX / scale  # the residual at the returned point, in px
+    tol = UNDISTORT_TOL_PX / scale  # UNDISTORT_TOL_PX in normalised units, for the residual at the returned point
     ok = ex * ex + ey * ey < tol * tol and r2 < fold_r2
     return x, y, ok
 
@@ -168,13 +168,16 @@ def ray1(lens: tuple, u: float, v: float, sx: float, sy: float) -> tuple[float, 
 
     ``(sx, sy)``: a guess of that shift (extrapolated from the neighbouring pixels', or 0): Newton starts
     there. The shift varies slowly, so a good guess saves most iterations; the result does not depend on
-    it beyond the 1e-8 px stopping tolerance (the distortion is one-to-one inside the fold radius).
+    it beyond the 1e-8 px stopping tolerance (the distortion is one-to-one inside the fold radius), and
+    validity does not either: when Newton fails from the guess it starts again from no shift.
     """
     xd, yd = (u - lens[2]) * lens[13], (v - lens[3]) * lens[14]  # multiplications: divisions cost 4-5x more
     x, y, ok = xd, yd, True
     if lens[12] != 0.0:
-        x, y, ok = undistort1(xd, yd, lens[4], lens[5], lens[6], lens[7], lens[8], max(lens[0], lens[1]), lens[11],
-                              xd + sx, yd + sy)  # fmt: skip
+        scale = max(lens[0], lens[1])
+        x, y, ok = undistort1(xd, yd, lens[4], lens[5], lens[6], lens[7], lens[8], scale, lens[11], xd + sx, yd + sy)
+        if not ok and (sx != 0.0 or sy != 0.0):  # a guess past the fold must not decide validity: start over
+            x, y, ok = undistort1(xd, yd, lens[4], lens[5], lens[6], lens[7], lens[8], scale, lens[11], xd, yd)
     inv = 1.0 / np.sqrt(x * x + y * y + 1.0)
     return x * inv, y * inv, inv, ok, (x - xd) if ok else 0.0, (y - yd) if ok else 0.0  # no bad guesses passed on
 

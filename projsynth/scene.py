@@ -112,6 +112,15 @@ def _visible1(g, terms, ex, ey, ez, x, y, z):  # noqa: ANN001, ANN202
     return np.isfinite(t) and t > dist * (1 - _VISIBILITY_TOL)
 
 
+@jit(inline=True)
+def _next_shifts(ok, sx, sy, sx1, sy1, prev_ok):  # noqa: ANN001, ANN202
+    """The two shifts the next pixel extrapolates from: ``(s, s_prev)``; after a failure, none (0, so the
+    guess is no shift), and right after one, ``s`` twice (the guess is the last shift, not twice it)."""
+    if not ok:
+        return 0.0, 0.0, 0.0, 0.0
+    return (sx, sy, sx1, sy1) if prev_ok else (sx, sy, sx, sy)
+
+
 @jit
 def _forward_many(proj, cam, R, C, g, terms, pts):  # noqa: ANN001, ANN202
     n = pts.shape[1]
@@ -119,9 +128,11 @@ def _forward_many(proj, cam, R, C, g, terms, pts):  # noqa: ANN001, ANN202
     always_seen = never_hidden1(g, C[0], C[1], C[2])
     t1 = t2 = np.nan  # the previous two rays' distances: neighbouring pixels hit close together
     sx1 = sy1 = sx2 = sy2 = 0.0  # the previous two pixels' undistortion shifts, the same way
+    prev_ok = False
     for i in range(n):
         dx, dy, dz, lens_ok, sx, sy = ray1(proj, pts[0, i], pts[1, i], 2.0 * sx1 - sx2, 2.0 * sy1 - sy2)
-        sx1, sy1, sx2, sy2 = (sx, sy, sx1, sy1) if lens_ok else (0.0, 0.0, 0.0, 0.0)
+        sx1, sy1, sx2, sy2 = _next_shifts(lens_ok, sx, sy, sx1, sy1, prev_ok)
+        prev_ok = lens_ok
         t = hit1(g, terms, 0.0, 0.0, 0.0, dx, dy, dz, 2.0 * t1 - t2)
         hit = np.isfinite(t)
         t1, t2 = (t, t1) if hit else (np.nan, np.nan)
@@ -151,9 +162,11 @@ def _backward_many(cam, proj, R, C, g, terms, pts):  # noqa: ANN001, ANN202
     always_lit = never_hidden1(g, 0.0, 0.0, 0.0)
     t1 = t2 = np.nan
     sx1 = sy1 = sx2 = sy2 = 0.0
+    prev_ok = False
     for i in range(n):
         cx, cy, cz, lens_ok, sx, sy = ray1(cam, pts[0, i], pts[1, i], 2.0 * sx1 - sx2, 2.0 * sy1 - sy2)
-        sx1, sy1, sx2, sy2 = (sx, sy, sx1, sy1) if lens_ok else (0.0, 0.0, 0.0, 0.0)
+        sx1, sy1, sx2, sy2 = _next_shifts(lens_ok, sx, sy, sx1, sy1, prev_ok)
+        prev_ok = lens_ok
         dx = R[0, 0] * cx + R[1, 0] * cy + R[2, 0] * cz  # R^T: camera -> world
         dy = R[0, 1] * cx + R[1, 1] * cy + R[2, 1] * cz
         dz = R[0, 2] * cx + R[1, 2] * cy + R[2, 2] * cz

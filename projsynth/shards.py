@@ -10,7 +10,7 @@ import errno
 import hashlib
 import json
 import os
-from concurrent.futures import ThreadPoolExecutor
+import threading
 from pathlib import Path
 
 import h5py
@@ -72,7 +72,7 @@ def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
                     proj.id.write_direct_chunk((i, 0, 0, 0), shared[2], filter_mask=shared[1])
                 else:
                     proj[i] = s.projected
-                    proj.flush()  # the chunk may still sit in HDF5's chunk cache, where direct reads miss it
+                    proj.flush()  # out of HDF5's chunk cache: a direct read of a cached chunk failed here (48 x 64)
                     shared = (s.projected, *proj.id.read_direct_chunk((i, 0, 0, 0)))
                 capt[i], valid[i] = s.captured, s.valid
                 exr[i] = np.frombuffer(encode_flow_exr(s.flow, s.valid, s.id), np.uint8)
@@ -166,15 +166,14 @@ class ShardReader:
         self.manifest = load_manifest(self.root)
         self.shard_size = self.manifest["shard_size"]
         self._files: dict[int, h5py.File] = {}
-        self._decoder: ThreadPoolExecutor | None = None
         self._pid = os.getpid()
 
     def __len__(self) -> int:
         return self.manifest["num_samples"]
 
     def _file(self, j: int) -> h5py.File:
-        if self._pid != os.getpid():  # never share HDF5 handles (or threads) across a fork
-            self._files, self._decoder, self._pid = {}, None, os.getpid()
+        if self._pid != os.getpid():  # never share HDF5 handles across a fork
+            self._files, self._pid = {}, os.getpid()
         if j not in self._files:
             self._files[j] = open_shard(self.root / shard_name(j))
         return self._files[j]
@@ -183,19 +182,18 @@ class ShardReader:
         """Sample ``k``; ``with_params=False`` skips parsing the parameter JSON (training needs none).
 
         ``valid`` comes from the flow EXR (``verify`` checks it equals the ``valid`` dataset). The EXR
-        decodes on a helper thread (OpenEXR releases the GIL) while the two images decompress here: the
-        same CPU time, about a third less latency (docs/benchmarks.md).
+        decodes on a short-lived thread (OpenEXR releases the GIL) while the two images decompress here:
+        about 1 ms more CPU time, about a third less latency (docs/benchmarks.md). No thread outlives
+        the call, so forking (DataLoader workers) is always safe.
         """
         if not 0 <= k < len(self):
             raise IndexError(k)
         j, i = divmod(k, self.shard_size)
         f = self._file(j)
-        if self._decoder is None:
-            self._decoder = ThreadPoolExecutor(1, thread_name_prefix="exr-decode")
         try:
-            decoding = self._decoder.submit(decode_flow_exr, f["flow_exr"][i].tobytes())
+            decoding = _Decoding(f["flow_exr"][i].tobytes())
             out = {"projected": f["projected"][i], "captured": f["captured"][i]}
-            flow, valid, _ = decoding.result()
+            flow, valid = decoding.result()
             out.update(valid=valid, flow=flow)
             if with_params:
                 out["params"] = json.loads(f["params"][i])
@@ -208,6 +206,25 @@ class ShardReader:
         for f in self._files.values():
             f.close()
         self._files = {}
-        if self._decoder is not None and self._pid == os.getpid():
-            self._decoder.shutdown()
-        self._decoder = None
+
+
+class _Decoding(threading.Thread):
+    """:func:`decode_flow_exr` of ``data`` on its own thread; ``result()`` joins it and returns
+    ``(flow, valid)`` or raises what the decoder raised."""
+
+    def __init__(self, data: bytes):
+        super().__init__(name="exr-decode", daemon=True)
+        self._data, self._out, self._error = data, None, None
+        self.start()
+
+    def run(self) -> None:
+        try:
+            self._out = decode_flow_exr(self._data)[:2]
+        except BaseException as e:  # re-raised in the caller's thread
+            self._error = e
+
+    def result(self) -> tuple:
+        self.join()
+        if self._error is not None:
+            raise self._error
+        return self._out

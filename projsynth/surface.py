@@ -280,9 +280,10 @@ def _heightfield(kind, terms, bound, slope, curvature, ox, oy, oz, dx, dy, dz, t
         if step == _MAX_SAFE_STEPS - 1:
             return np.inf
         # Two safe steps, the longer wins: g stays below 0 for s < -g / lipschitz, and below the
-        # parabola g + g' s + bend s^2 / 2 until its first root (written without cancellation), which
-        # near a simple root is Newton's step.
-        curved = -2.0 * g / (gp + np.sqrt(gp * gp - 2.0 * bend * g))
+        # parabola g + g' s + bend s^2 / 2 until its first root, which near a simple root is Newton's
+        # step (the form without cancellation for either sign of g'; bend = 0, g' <= 0: no root, inf).
+        root = np.sqrt(gp * gp - 2.0 * bend * g)
+        curved = -2.0 * g / (gp + root) if gp >= 0 else (root - gp) / bend
         t += max(-g / lipschitz, curved if np.isfinite(curved) else 0.0)
     for _ in range(4):  # within _NEAR of the first root only a tangent ray could reach a later one
         g, gp = _g(kind, terms, ox, oy, oz, dx, dy, dz, t)

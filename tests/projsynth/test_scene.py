@@ -137,3 +137,67 @@ def test_convex_visibility_without_a_cast_matches_the_ray_cast(kind, baseline_de
     considered = (fm.reason[hit] | OCCLUDED) == OCCLUDED  # hit, in frame, lens fine: visibility decides
     assert considered.sum() > 1000 and (~seen[considered]).sum() > 20
     np.testing.assert_array_equal(occluded[considered], ~seen[considered])
+
+
+@pytest.mark.parametrize("k1", [-0.21, -0.28])
+def test_lens_validity_does_not_depend_on_the_neighbours_guesses(k1):
+    # the maps start each undistortion from the neighbouring pixels' shifts; near the fold radius a
+    # guess can start Newton past it, which must not make a pixel invalid (a zero guess decides)
+    from projsynth.lens import pixels_to_rays
+    from projsynth.scene import LENS
+
+    h, w = 192, 256
+    strong = Lens(192.5, 192.5, (w - 1) / 2, (h - 1) / 2, (k1, -0.02, 0.008, -0.008, 0.0), w, h)
+    plain = Lens(192.5, 192.5, (w - 1) / 2, (h - 1) / 2, (0.0,) * 5, w, h)
+    target = np.array([0.0, 0.0, 1.0])
+    C = np.array([0.02, 0.0, 0.0])  # camera beside the projector: every hit point lies in front of it
+    scene = Scene(strong, plain, look_at(C, target, (0.0, 0.0), 0.0, plain), C, Surface("plane", np.eye(3), target))
+    grid = pixel_grid(h, w)
+    _, alone = pixels_to_rays(strong, grid[0], grid[1])  # each pixel from a zero guess
+    assert 0 < (~alone).sum() < alone.size // 2  # the fold radius cuts the corners
+    fm = forward(scene, grid)
+    np.testing.assert_array_equal((fm.reason & LENS) == 0, alone)
+    scene_back = Scene(plain, strong, np.eye(3), np.zeros(3), Surface("plane", np.eye(3), target))
+    _, lit = backward(scene_back, grid)  # camera = the strong lens, projector at the same place
+    assert not lit[~alone].any()  # a camera pixel that cannot be undistorted is never lit
+    np.testing.assert_array_equal(lit[alone], backward(scene_back, grid[:, alone])[1])
+
+
+def _height(surface, x, y):
+    """The height field of a wave or bumps surface at local (x, y), in numpy (independent of the kernels)."""
+    h = np.zeros_like(x)
+    for a, p, q, r in surface.params.get("waves", []):
+        h += a * np.sin(p * x + q * y + r)
+    for a, cx, cy, s in surface.params.get("bumps", []):
+        h += a * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s * s))
+    return h
+
+
+@pytest.mark.parametrize("family", ["wave", "bumps"])
+def test_heightfield_casts_find_the_first_root_of_shallow_and_steep_rays(family):
+    # against a dense scan of g(t) = z - h(x, y) along each ray: the cast's root must have g < 0
+    # everywhere before it (no earlier crossing skipped by a certified Newton step or a marching step)
+    cfg = _config(family, 4)
+    surface = make_scene(family, cfg.geometry, np.random.default_rng(7), (H, W))[0].surface
+    rng = np.random.default_rng(1)
+    n, R, origin = 1500, surface.rotation, surface.origin
+    # eyes in front of the surface, 2 away from random points of it, from 40 degrees to grazing:
+    # some of those points hide behind a crest, so their rays cross the surface earlier
+    targets = np.c_[rng.uniform(-0.4, 0.4, n), rng.uniform(-0.3, 0.3, n)]
+    targets = np.c_[targets, _height(surface, targets[:, 0], targets[:, 1])]
+    elev, az = rng.uniform(np.radians(3), np.radians(40), n), rng.uniform(0, 2 * np.pi, n)
+    back = np.c_[np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), -np.sin(elev)]  # towards the eye
+    eyes_local = targets + 2.0 * back
+    bound = sum(abs(term[0]) for term in surface.params.get("waves", surface.params.get("bumps")))
+    front = eyes_local[:, 2] < -bound  # casts require the eye in front of the slab |z| <= bound
+    assert front.mean() > 0.8
+    eyes_local, back = eyes_local[front], back[front]
+    t, hit = intersect(surface, (R @ eyes_local.T) + origin[:, None], R @ -back.T)
+    assert hit.mean() > 0.99
+    assert (t[hit] < 2.0 - 1e-3).sum() > 20  # rays stopped by a crest before their target
+    s = np.linspace(0, 1, 4001)[:, None]  # dense scan up to each root
+    for j in np.nonzero(hit)[0]:
+        pts = eyes_local[j] + (s * t[j]) * (-back[j])
+        g = pts[:, 2] - _height(surface, pts[:, 0], pts[:, 1])
+        assert abs(g[-1]) < 1e-8, (j, g[-1])  # the root is on the surface
+        assert (g[:-2] < 0).all(), (family, j)  # and nothing was crossed before it
