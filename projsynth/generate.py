@@ -116,6 +116,9 @@ def _prepare_dir(out: Path, info: dict) -> None:
             old = read_json(plan_path, "plan")
         except ProjsynthError:
             old = {}
+        if old.get("generator", info["generator"]) != info["generator"]:
+            raise ProjsynthError(f"--out {out}: holds a dataset made by {old['generator']}, whose samples differ from "
+                                 f"{info['generator']}'s; use a new --out, or delete it to regenerate")  # fmt: skip
         if old.get("config_hash") != info["config_hash"] or old.get("shard_size") != info["shard_size"]:
             raise ProjsynthError(f"--out {out}: holds a dataset made with other options (see {plan_path}); "
                                  "use a new --out, or the same options to resume")  # fmt: skip

@@ -213,3 +213,13 @@ def test_a_small_user_table(cli, builtin_toml, tmp_path):
     assert manifest["table_version"] == "two" and manifest["transforms"] == [0, 1]
     assert [s["id"] for s in manifest["samples"]] == [f"train-p00000-r{r}-t00{t}" for r in (0, 1) for t in (0, 1)]
     assert cli.run("verify", out, "-q").exit_code == 0
+
+
+def test_a_dataset_from_another_generator_version_is_named_not_resumed(cli, planar_ds, copy_dataset):
+    root = copy_dataset(planar_ds)
+    plan = json.loads((root / "dataset.json").read_text())
+    (root / "dataset.json").write_text(json.dumps({**plan, "generator": "projsynth 0.1.0"}))
+    cli.assert_one_line_error(
+        cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8"),
+        "--out", "made by projsynth 0.1.0", "delete it to regenerate",
+    )  # fmt: skip
