@@ -192,7 +192,10 @@ class ShardReader:
         f = self._file(j)
         try:
             decoding = _Decoding(f["flow_exr"][i].tobytes())
-            out = {"projected": f["projected"][i], "captured": f["captured"][i]}
+            try:
+                out = {"projected": f["projected"][i], "captured": f["captured"][i]}
+            finally:
+                decoding.join()  # also when an image read fails: the thread ends with the call
             flow, valid = decoding.result()
             out.update(valid=valid, flow=flow)
             if with_params:
