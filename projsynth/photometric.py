@@ -55,7 +55,7 @@ def composite(
         xy, lit = _positions(xy, lit)
         if lit.size != h * w:
             raise ValueError(f"composite needs one position per camera pixel ({h * w}), got {lit.size}")
-        raw = rng.bit_generator.random_raw(-(-h * w * 3 // 4))  # the bits of gaussian_noise(rng, (h, w, 3))
+        raw = _noise_bits(rng, h * w * 3)  # the bits of gaussian_noise(rng, (h, w, 3))
         return _paper(_rgba(image), xy[0], xy[1], lit, np.ascontiguousarray(background), raw, normal_table(),
                       *(float(p[k]) for k in _PAPER))  # fmt: skip
     if blend != "physical":
@@ -110,8 +110,12 @@ def gaussian_noise(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarr
     invisible.
     """
     n = int(np.prod(shape))
-    raw = rng.bit_generator.random_raw(-(-n // 4))
-    return _lookup16(raw, normal_table(), n).reshape(shape)
+    return _lookup16(_noise_bits(rng, n), normal_table(), n).reshape(shape)
+
+
+def _noise_bits(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Raw 64-bit words holding 16 bits for each of ``n`` noise values (:func:`_normal1` reads them)."""
+    return rng.bit_generator.random_raw(-(-n // 4))
 
 
 @lru_cache(maxsize=1)
