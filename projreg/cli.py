@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 from tqdm import tqdm
@@ -23,6 +24,19 @@ def main() -> None:
 def _fail(e: Exception) -> typer.Exit:
     typer.echo(f"projreg: error: {e}", err=True)
     return typer.Exit(2)
+
+
+def _end_torchrun_worker(code: int) -> NoReturn:
+    """End a torchrun worker once its process group is gone, skipping interpreter shutdown.
+
+    A gloo worker that reaches interpreter finalisation can abort there ("terminate called without an
+    active exception", SIGABRT: C++ communication threads outliving Python; pytorch/pytorch#190489,
+    #179291); a CPU run in CI ended so once. Everything the run writes is closed by now (checkpoints
+    are fsynced and renamed), so only the console streams need flushing.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def _parse_crop(text: str) -> tuple[int, int] | None:
@@ -66,6 +80,7 @@ def train(
     from .train import TrainConfig
     from .train import train as run_training
 
+    torchrun = int(os.environ.get("WORLD_SIZE", "1")) > 1
     try:
         cfg = TrainConfig(data=[str(p) for p in data], out=str(out), val=[str(p) for p in val or []], model=model,
                           use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
@@ -81,10 +96,15 @@ def train(
 
             summary = run_training(cfg, resume=resume, progress=progress)
     except ProjregError as e:
-        raise _fail(e) from None
+        failure = _fail(e)
+        if torchrun:
+            _end_torchrun_worker(failure.exit_code)
+        raise failure from None
     if not quiet:
         typer.echo(f"{out}: step {summary['step']}, loss {summary['loss']:.4f}, best val EPE {summary['best_epe']}",
                    err=True)  # fmt: skip
+    if torchrun:
+        _end_torchrun_worker(0)
 
 
 @app.command()

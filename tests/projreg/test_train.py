@@ -98,12 +98,30 @@ def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
     run = tmp_path / "ddp"
     torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m",
                 "projreg.cli"]
-    env = os.environ | {"OMP_NUM_THREADS": "1"}
-    subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3", "--batch-size",
-                               "1", "--workers", "0", "--crop", "none", "--quiet"], check=True, env=env, timeout=300)
+    env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}  # an abort shows every thread's stack
+    done = subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3",
+                                      "--batch-size", "1", "--workers", "0", "--crop", "none", "--quiet"],
+                          env=env, timeout=300, capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-6000:]
     sums = __import__("json").loads((run / "ddp_params.json").read_text())
     assert len(sums) == 2 and sums[0] == sums[1]
     assert torch.load(run / "checkpoints" / "last.pt", weights_only=True)["step"] == 3
+
+
+def test_torchrun_worker_error_is_one_line_and_exit_2(tiny_train, tmp_path):
+    run = tmp_path / "ddp"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.pt").write_bytes(b"a run already here")
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m",
+                "projreg.cli"]
+    env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}
+    done = subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3",
+                                      "--workers", "0", "--crop", "none", "--quiet"],
+                          env=env, timeout=300, capture_output=True, text=True)  # fmt: skip
+    assert done.returncode != 0
+    assert f"projreg: error: --out {run}: already holds a run" in done.stderr
+    assert "exitcode  : 2" in done.stderr and "Fatal Python error" not in done.stderr
+    assert (run / "checkpoints" / "last.pt").read_bytes() == b"a run already here"
 
 
 def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tiny_train, tmp_path, monkeypatch):
