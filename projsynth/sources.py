@@ -24,9 +24,7 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
 MIN_SOURCE_SIDE = 32
 # "all" takes every image: a folder held out from training, used whole as a test set
 SPLITS = ("train", "val", "test", "all")
-# Bundled with scikit-image (no download) and checked to be RGB photographs >= 300 px. Left out:
-# ``cat`` (same picture as ``chelsea``), ``hubble_deep_field`` and ``retina`` (72 % / 23 % near-black).
-SKIMAGE_SAMPLES = ("astronaut", "chelsea", "coffee", "immunohistochemistry", "rocket")
+
 
 
 @dataclass(frozen=True)
@@ -34,7 +32,7 @@ class SourceImage:
     """Where one source image comes from.
 
     ``kind``: ``"natural"`` or ``"generated"``; ``name``: relative POSIX path inside the folder (or
-    ``"skimage:<name>"``, or a procedural name); ``theme``: scene label or None; ``path``: the file,
+    a procedural name); ``theme``: scene label or None; ``path``: the file,
     None for images that are not files.
     """
 
@@ -181,36 +179,3 @@ class FolderSource:
     def load(self, src: SourceImage, size: tuple[int, int]) -> np.ndarray:
         """``load_image`` then ``fit_to_size``: ``H x W x 3`` uint8 RGB; ProjsynthError names the file."""
         return fit_to_size(load_image(src.path), size, name=str(src.path))
-
-
-def skimage_sample_names() -> tuple[str, ...]:
-    """Names of the scikit-image photographs usable offline as natural images (``SKIMAGE_SAMPLES``)."""
-    return SKIMAGE_SAMPLES
-
-
-class SkimageSource:
-    """scikit-image's bundled photographs as natural images (optional extra ``projsynth[samples]``).
-
-    Only five images: with the 80/10/10 hash split, ``val`` or ``test`` may be empty.
-    """
-
-    kind = "natural"
-
-    def __init__(self) -> None:
-        try:
-            import skimage.data  # noqa: F401  (imported lazily: an optional dependency)
-        except ImportError as err:
-            raise ProjsynthError("scikit-image is not installed; pip install 'projsynth[samples]'") from err
-        self.images = tuple(SourceImage(self.kind, f"skimage:{n}", None, None) for n in SKIMAGE_SAMPLES)
-
-    def files_for_split(self, split: str, seed: int) -> list[SourceImage]:
-        return _for_split(self.images, split, seed)
-
-    def load(self, src: SourceImage, size: tuple[int, int]) -> np.ndarray:
-        import skimage.data
-
-        name = src.name.removeprefix("skimage:")
-        if name not in SKIMAGE_SAMPLES:
-            raise ProjsynthError(f"{src.name}: not a bundled scikit-image photograph; use one of "
-                                 f"{', '.join(SKIMAGE_SAMPLES)}")
-        return fit_to_size(np.ascontiguousarray(getattr(skimage.data, name)()), size, name=src.name)

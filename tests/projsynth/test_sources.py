@@ -1,6 +1,7 @@
 import dataclasses
 import hashlib
 import struct
+import subprocess
 import sys
 import zlib
 from pathlib import Path
@@ -13,16 +14,13 @@ from projsynth import ProjsynthError
 from projsynth.sources import (
     IMAGE_EXTENSIONS,
     MIN_SOURCE_SIDE,
-    SKIMAGE_SAMPLES,
     SPLITS,
     FolderSource,
-    SkimageSource,
     SourceImage,
     fit_to_size,
     list_images,
     load_image,
     scene_label,
-    skimage_sample_names,
     split_of,
 )
 
@@ -300,22 +298,23 @@ def test_source_image_is_frozen():
         FolderSource(Path("."), "photo", "--natural")
 
 
-# --- scikit-image samples --------------------------------------------------------------------------
+# --- scikit-image's pictures, the offline photographs (bench/real_sources.py) ----------------------
 
 
-def test_skimage_samples_load_offline():
+def test_real_sources_script_writes_folders_that_gen_uses_whole(tmp_path):
     pytest.importorskip("skimage")
-    source = SkimageSource()
-    assert skimage_sample_names() == SKIMAGE_SAMPLES and len(source.images) == len(SKIMAGE_SAMPLES)
-    for item in source.images:
-        img = source.load(item, (96, 128))
-        assert img.shape == (96, 128, 3) and img.dtype == np.uint8
-        assert img.std() > 15 and np.ptp(img.reshape(-1, 3).mean(0)) > 2  # textured, in colour
-    assert sum(len(source.files_for_split(s, 0)) for s in ("train", "val", "test")) == len(SKIMAGE_SAMPLES)
+    from projsynth.dataset import resolve_plan
 
-
-def test_skimage_missing_is_a_clear_error(monkeypatch):
-    monkeypatch.setitem(sys.modules, "skimage", None)
-    monkeypatch.setitem(sys.modules, "skimage.data", None)
-    with pytest.raises(ProjsynthError, match=r"pip install 'projsynth\[samples\]'"):
-        SkimageSource()
+    script = Path(__file__).parents[2] / "bench" / "real_sources.py"
+    done = subprocess.run([sys.executable, str(script), "--out", str(tmp_path)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    natural = list_images(tmp_path / "natural", "--natural")
+    generated = list_images(tmp_path / "generated", "--generated")
+    assert (len(natural), len(generated)) == (12, 7)
+    plan = resolve_plan(size=(96, 128), seed=5, split="all", pairs=None, transforms="0", blend="paper",
+                        natural=tmp_path / "natural", generated=tmp_path / "generated")  # fmt: skip
+    assert plan.pairs == 7 and not plan.skipped  # every picture loads; pairs = the smaller folder
+    for path in natural + generated:
+        img = load_image(path)
+        assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3 and min(img.shape[:2]) >= 128
+        assert img.std() > 10  # a picture, not a blank or all-black frame
