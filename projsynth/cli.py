@@ -33,7 +33,7 @@ def _fail(e: Exception) -> typer.Exit:
     return typer.Exit(2)
 
 
-def _bar(total: int, desc: str, quiet: bool) -> tqdm:
+def _bar(total: int | None, desc: str, quiet: bool) -> tqdm:
     return tqdm(total=total, desc=desc, unit="sample", disable=quiet, file=sys.stderr, leave=False)
 
 
@@ -64,7 +64,12 @@ def gen(
         for line in plan.skipped:
             typer.echo(f"projsynth: warning: skipped {line}", err=True)
         with _bar(plan.num_samples, "gen", quiet) as bar:
-            result = generate(plan, out, shard_size=shard_size, shards=shards, workers=workers, progress=bar.update)
+            def total(n: int) -> None:  # --shards: the selected shards' samples, not the whole plan's
+                bar.total = n
+                bar.refresh()
+
+            result = generate(plan, out, shard_size=shard_size, shards=shards, workers=workers, progress=bar.update,
+                              progress_total=total)  # fmt: skip
     except ProjsynthError as e:
         raise _fail(e) from None
     if not quiet:
@@ -125,10 +130,12 @@ def export(
     root: Annotated[Path, typer.Argument(help="Dataset directory.")],
     out: Annotated[Path, typer.Option(help="Output folder.")],
     limit: Annotated[int | None, typer.Option(help="Export only the first N samples.")] = None,
+    quiet: Quiet = False,
 ) -> None:
     """Write PNGs, the flow .exr bytes unchanged, Middlebury .flo and a colour visualisation."""
     try:
-        n = export_samples(root, out, limit)
+        with _bar(None, "export", quiet) as bar:
+            n = export_samples(root, out, limit, progress=bar.update)
     except ProjsynthError as e:
         raise _fail(e) from None
     typer.echo(f"{out}: {n} samples exported", err=True)

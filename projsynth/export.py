@@ -2,74 +2,80 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from . import ProjsynthError
-from .flowio import decode_flow_exr, flow_to_color, write_atomic, write_flo
-from .shards import load_manifest, open_shard
+from .flowio import flow_to_color, write_atomic, write_flo
+from .shards import ShardReader
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb):
-        raise ProjsynthError(f"{path}: cannot write PNG; check the directory is writable and has space")
+    ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb)
+    if not ok:
+        raise ProjsynthError(f"{path}: cannot encode PNG of shape {rgb.shape}")
+    write_atomic(path, data.tobytes())
 
 
-def export(root: Path, out: Path, limit: int | None = None) -> int:
+def export(root: Path, out: Path, limit: int | None = None, progress: Callable[[int], None] | None = None) -> int:
     """Write each sample as ``ID_projected.png``, ``ID_captured.png``, ``ID_valid.png``,
     ``ID_flow.exr`` (the stored bytes, unchanged), ``ID_flow.flo`` and ``ID_flow.png`` (colour wheel).
+
+    Every file is written atomically; a damaged shard stops the export with one error naming it.
 
     Returns:
         The number of samples exported.
     """
     if limit is not None and limit < 1:
         raise ProjsynthError(f"--limit: must be >= 1, got {limit}")
-    manifest = load_manifest(root)
+    reader = ShardReader(root)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ProjsynthError(f"--out {out}: cannot create directory ({e.strerror})") from e
-    n = 0
-    for entry in manifest["shards"]:
-        with open_shard(Path(root) / entry["file"]) as f:
-            for i in range(entry["count"]):
-                if limit is not None and n >= limit:
-                    return n
-                sid = f["sample_id"][i].decode()
-                data = f["flow_exr"][i].tobytes()
-                flow, valid, _ = decode_flow_exr(data)
-                write_atomic(out / f"{sid}_flow.exr", data)
-                write_flo(out / f"{sid}_flow.flo", flow, valid)
-                _write_png(out / f"{sid}_projected.png", f["projected"][i])
-                _write_png(out / f"{sid}_captured.png", f["captured"][i])
-                _write_png(out / f"{sid}_valid.png", valid.astype(np.uint8) * 255)
-                _write_png(out / f"{sid}_flow.png", flow_to_color(flow, valid))
-                n += 1
+    n = len(reader) if limit is None else min(limit, len(reader))
+    try:
+        for k in range(n):
+            s = reader.read(k, flow_exr=True)
+            sid, flow, valid = s["params"]["sample_id"], s["flow"], s["valid"]
+            write_atomic(out / f"{sid}_flow.exr", s["flow_exr"])
+            write_flo(out / f"{sid}_flow.flo", flow, valid)
+            _write_png(out / f"{sid}_projected.png", s["projected"])
+            _write_png(out / f"{sid}_captured.png", s["captured"])
+            _write_png(out / f"{sid}_valid.png", valid.astype(np.uint8) * 255)
+            _write_png(out / f"{sid}_flow.png", flow_to_color(flow, valid))
+            if progress:
+                progress(1)
+    finally:
+        reader.close()
     return n
 
 
 def preview(root: Path, out: Path, count: int = 8) -> int:
-    """Contact sheet: one row per sample, ``projected | captured | flow colour | valid``.
+    """Contact sheet (a PNG): one row per sample, ``projected | captured | flow colour | valid``.
 
     Samples are spread evenly over the dataset so several transform families show.
     """
     if count < 1:
         raise ProjsynthError(f"--count: must be >= 1, got {count}")
-    manifest = load_manifest(root)
-    total, size = manifest["num_samples"], manifest["shard_size"]
+    if out.suffix.lower() != ".png":
+        raise ProjsynthError(f"--out {out}: the contact sheet is a PNG; give a name ending in .png")
+    reader = ShardReader(root)
     rows = []
-    for k in np.linspace(0, total - 1, min(count, total)).astype(int):
-        j, i = divmod(int(k), size)
-        with open_shard(Path(root) / manifest["shards"][j]["file"]) as f:
-            flow, valid, _ = decode_flow_exr(f["flow_exr"][i].tobytes())
-            gray = np.repeat((valid.astype(np.uint8) * 255)[..., None], 3, axis=2)
-            row = np.hstack([f["projected"][i], f["captured"][i], flow_to_color(flow, valid), gray])
-            label = f["sample_id"][i].decode()
-        cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 2, cv2.LINE_AA)
-        cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-        rows.append(row)
+    try:
+        for k in np.linspace(0, len(reader) - 1, min(count, len(reader))).astype(int):
+            s = reader.read(int(k))
+            gray = np.repeat((s["valid"].astype(np.uint8) * 255)[..., None], 3, axis=2)
+            row = np.hstack([s["projected"], s["captured"], flow_to_color(s["flow"], s["valid"]), gray])
+            label = s["params"]["sample_id"]
+            cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 2, cv2.LINE_AA)
+            cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+            rows.append(row)
+    finally:
+        reader.close()
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:

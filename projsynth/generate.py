@@ -60,9 +60,11 @@ def generate(
     shards: str | None = None,
     workers: int = 1,
     progress: Callable[[int], None] | None = None,
+    progress_total: Callable[[int], None] | None = None,
 ) -> GenResult:
     """Write the shards of ``plan`` under ``out`` (a subset with ``shards``) and, when all exist,
-    the manifest. ``progress(n)`` is called with the number of samples each finished shard adds."""
+    the manifest. ``progress_total(n)`` is called once with the samples of the selected shards,
+    ``progress(n)`` with the number of samples each finished (or already done) shard adds."""
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
     if workers < 1:
@@ -76,6 +78,8 @@ def generate(
     for j in todo_range:
         (out / (shard_name(j) + ".tmp")).unlink(missing_ok=True)  # left by an interrupted run
         (done if shard_is_complete(out / shard_name(j), info["config_hash"]) else todo).append(j)
+    if progress_total:
+        progress_total(sum(_shard_count(plan, shard_size, j) for j in todo_range))
     if progress:
         progress(sum(_shard_count(plan, shard_size, j) for j in done))
     jobs = [(plan, out, shard_size, j, info["config_hash"]) for j in todo]

@@ -178,8 +178,9 @@ class ShardReader:
             self._files[j] = open_shard(self.root / shard_name(j))
         return self._files[j]
 
-    def read(self, k: int, with_params: bool = True) -> dict:
-        """Sample ``k``; ``with_params=False`` skips parsing the parameter JSON (training needs none).
+    def read(self, k: int, with_params: bool = True, flow_exr: bool = False) -> dict:
+        """Sample ``k``; ``with_params=False`` skips parsing the parameter JSON (training needs none),
+        ``flow_exr=True`` adds the stored EXR file's bytes, unchanged (``export``).
 
         ``valid`` comes from the flow EXR (``verify`` checks it equals the ``valid`` dataset). The EXR
         decodes on a short-lived thread (OpenEXR releases the GIL) while the two images decompress here:
@@ -191,13 +192,16 @@ class ShardReader:
         j, i = divmod(k, self.shard_size)
         f = self._file(j)
         try:
-            decoding = _Decoding(f["flow_exr"][i].tobytes())
+            exr = f["flow_exr"][i].tobytes()
+            decoding = _Decoding(exr)
             try:
                 out = {"projected": f["projected"][i], "captured": f["captured"][i]}
             finally:
                 decoding.join()  # also when an image read fails: the thread ends with the call
             flow, valid = decoding.result()
             out.update(valid=valid, flow=flow)
+            if flow_exr:
+                out["flow_exr"] = exr
             if with_params:
                 out["params"] = json.loads(f["params"][i])
             return out

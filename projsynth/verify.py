@@ -11,7 +11,7 @@ import numpy as np
 from . import ProjsynthError
 from .dataset import Sample
 from .flowio import decode_flow_exr
-from .shards import file_sha256, load_manifest, open_shard, shard_name
+from .shards import MANIFEST, ShardReader, file_sha256, load_manifest, open_shard, shard_name
 
 BUCKETS = ("s0-10", "s10-40", "s40+")
 
@@ -44,7 +44,9 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
     """
     root = Path(root)
     manifest = load_manifest(root)
-    problems = []
+    problems = [f"{root / MANIFEST}: {p}; re-run `projsynth merge {root}`" for p in _check_manifest(manifest)]
+    if problems:
+        return problems  # the shard entries cannot be trusted to say which samples each file should hold
     h, w = manifest["size"]
     for entry in manifest["shards"]:
         expected = iter(manifest["samples"][entry["first_sample"] : entry["first_sample"] + entry["count"]])
@@ -65,12 +67,42 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
     return problems
 
 
+def _check_manifest(m: dict) -> list[str]:
+    """The manifest's own arithmetic: shards 0..N-1 in order, each full but the last, tiling the samples."""
+    size, shards = m["shard_size"], m["shards"]
+    if not isinstance(size, int) or size < 1 or not isinstance(shards, list) or not isinstance(m["samples"], list):
+        return ["shard_size, shards or samples is malformed"]
+    out = []
+    if "num_shards" in m and m["num_shards"] != len(shards):
+        out.append(f"lists {len(shards)} shards, num_shards says {m['num_shards']}")
+    expected_total = m["pairs"] * 2 * len(m["transforms"]) if {"pairs", "transforms"} <= m.keys() else None
+    first = 0
+    for j, e in enumerate(shards):
+        count = e.get("count") if isinstance(e, dict) else None
+        if not isinstance(count, int) or e.get("index") != j or e.get("first_sample") != first:
+            out.append(f"shard entry {j} is not shard {j} starting at sample {first}")
+            break
+        if not 1 <= count <= size or (count < size and j < len(shards) - 1):
+            out.append(f"shard {j} holds {count} samples; every shard but the last holds {size}")
+        first += count
+    for what, n in (("shard counts sum to", first), ("samples list has", len(m["samples"])),
+                    ("plan (pairs x 2 x transforms) makes", expected_total)):  # fmt: skip
+        if n is not None and n != m["num_samples"]:
+            out.append(f"num_samples is {m['num_samples']} but the {what} {n}")
+    return out
+
+
 def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h: int, w: int) -> list[str]:
     out = []
     with open_shard(path) as f:
         n = entry["count"]
-        if f.attrs.get("config_hash") != manifest["config_hash"] or f.attrs.get("shard_index") != entry["index"]:
-            out.append("attributes do not match the manifest (config hash or shard index)")
+        a = f.attrs
+        if (a.get("config_hash") != manifest["config_hash"] or a.get("shard_index") != entry["index"]
+                or a.get("first_sample") != entry["first_sample"] or a.get("count") != n
+                or a.get("format_version") != manifest.get("format_version")
+                or a.get("generator") != manifest.get("generator")):  # fmt: skip
+            out.append("attributes do not match the manifest (config hash, shard index, first sample, count, "
+                       "format version or generator)")  # fmt: skip
         for name, shape in (("projected", (n, h, w, 3)), ("captured", (n, h, w, 3)), ("valid", (n, h, w))):
             if f[name].shape != shape:
                 out.append(f"dataset {name} has shape {f[name].shape}, expected {shape}")
@@ -99,24 +131,28 @@ def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h:
 def inspect(root: Path) -> dict:
     """Counts, per-family flow-magnitude histograms and the share of valid pixels per bucket."""
     root = Path(root)
-    manifest = load_manifest(root)
+    reader = ShardReader(root)
+    manifest = reader.manifest
     edges = [0, 2, 5, 10, 20, 40, 80, 160, np.inf]
     families: dict[str, dict] = {}
     total = {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0], "hist": [0] * (len(edges) - 1)}
-    for entry in manifest["shards"]:
-        for _, s in _samples(root / entry["file"]):
-            fam = s.params["transform"]["family"]
+    try:
+        for k in range(len(reader)):
+            s = reader.read(k)
+            fam, flow, valid = s["params"]["transform"]["family"], s["flow"], s["valid"]
             rec = families.setdefault(fam, {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0],
                                             "hist": [0] * (len(edges) - 1)})  # fmt: skip
-            mag = np.hypot(s.flow[..., 0], s.flow[..., 1])[s.valid]
+            mag = np.hypot(flow[..., 0], flow[..., 1])[valid]
             counts = [int(m.sum()) for m in bucket_of(mag)]
             hist = np.histogram(mag, bins=edges)[0]
             for r in (rec, total):
                 r["samples"] += 1
-                r["pixels"] += s.valid.size
-                r["valid"] += int(s.valid.sum())
+                r["pixels"] += valid.size
+                r["valid"] += int(valid.sum())
                 r["buckets"] = [a + b for a, b in zip(r["buckets"], counts, strict=True)]
                 r["hist"] = [a + int(b) for a, b in zip(r["hist"], hist, strict=True)]
+    finally:
+        reader.close()
     return {
         "dataset": str(root),
         "config": {k: manifest[k] for k in ("size", "seed", "split", "pairs", "blend", "table_version")},

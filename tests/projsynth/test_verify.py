@@ -67,6 +67,34 @@ def test_verify_names_only_the_damaged_shard(cli, planar_ds, copy_dataset, damag
     assert all(str(root / shard_name(j)) in s for s in lines), lines
 
 
+
+def _drop_last_shard(m: dict) -> None:
+    last = m["shards"].pop()
+    m["samples"] = m["samples"][: last["first_sample"]]
+    m["num_samples"] = len(m["samples"])
+
+
+MANIFEST_ARITHMETIC = {
+    "last shard dropped": (_drop_last_shard, "lists 4 shards, num_shards says 5"),
+    "num_samples changed": (lambda m: m.update(num_samples=99), "num_samples is 99 but the shard counts sum to 40"),
+    "shards swapped": (lambda m: m["shards"].reverse(), "shard entry 0 is not shard 0 starting at sample 0"),
+    "a short middle shard": (lambda m: m["shards"][1].update(count=3), "shard 1 holds 3 samples"),
+}
+
+
+@pytest.mark.parametrize("damage", MANIFEST_ARITHMETIC)
+def test_manifest_that_does_not_tile_the_plan_fails_verify(cli, planar_ds, copy_dataset, damage):
+    """Every file still hashes as listed: only the manifest's own arithmetic is wrong."""
+    root = copy_dataset(planar_ds)
+    path = root / "manifest.json"
+    manifest = json.loads(path.read_text())
+    assert (len(manifest["shards"]), manifest["num_samples"]) == (5, 40)
+    edit, message = MANIFEST_ARITHMETIC[damage]
+    edit(manifest)
+    path.write_text(json.dumps(manifest))
+    lines = _problems(cli, cli.run("verify", root, "-q"))
+    assert any(str(path) in s and message in s for s in lines), lines
+
 MANIFEST_DAMAGE = [
     "truncated",
     "missing",
@@ -306,3 +334,21 @@ def test_preview_sheet(cli, mixed_ds, tmp_path, count):
             np.testing.assert_array_equal(row[:, 3 * w:, 0], s["valid"][26:].astype(np.uint8) * 255)
     finally:
         reader.close()
+
+
+def test_preview_refuses_a_name_that_is_not_png(cli, mixed_ds, tmp_path):
+    for name in ("sheet", "sheet.jpg"):
+        cli.assert_one_line_error(cli.run("preview", mixed_ds, "--out", tmp_path / name), "--out", ".png")
+    assert not list(tmp_path.iterdir())
+
+
+def test_damaged_flow_in_a_shard_is_one_line_for_inspect_export_preview(cli, planar_ds, copy_dataset, tmp_path):
+    root = copy_dataset(planar_ds)
+    shard = root / shard_name(0)
+    with h5py.File(shard, "r+") as f:
+        f["flow_exr"][0] = np.frombuffer(b"\x76\x2f\x31\x01 not the rest of an EXR file", np.uint8)
+    runs = {"inspect": [], "export": ["--out", tmp_path / "x", "-q"], "preview": ["--out", tmp_path / "p.png"]}
+    for command, options in runs.items():
+        line = cli.assert_one_line_error(cli.run(command, root, *options), shard, "sample 0", "projsynth verify")
+        assert "not a valid OpenEXR flow file" in line, line
+    assert not (tmp_path / "p.png").exists() and not list((tmp_path / "x").iterdir())
