@@ -67,6 +67,8 @@ def train(
     crop: Annotated[str, typer.Option(help="Training crop HxW, or none for full frames.")] = "256x320",
     workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = 2,
     val_every: Annotated[int, typer.Option(help="Validate every N steps.")] = 500,
+    val_samples: Annotated[int, typer.Option(help="Validate on N samples spread over --val (best.pt is chosen "
+                                                  "on them).")] = 64,
     ckpt_every: Annotated[int, typer.Option(help="Write last.pt every N steps.")] = 100,
     log_every: Annotated[int, typer.Option(help="Log a metrics row every N steps.")] = 10,
     amp: Annotated[bool, typer.Option(help="bf16 autocast (CUDA only).")] = False,
@@ -85,7 +87,8 @@ def train(
         cfg = TrainConfig(data=[str(p) for p in data], out=str(out), val=[str(p) for p in val or []], model=model,
                           use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
                           warmup_steps=warmup_steps, batch_size=batch_size, lr=lr, seed=seed,
-                          workers=workers, crop=_parse_crop(crop), val_every=val_every, ckpt_every=ckpt_every,
+                          workers=workers, crop=_parse_crop(crop), val_every=val_every, val_samples=val_samples,
+                          ckpt_every=ckpt_every,
                           log_every=log_every, amp=amp, compile=compile,
                           activation_checkpointing=activation_checkpointing)  # fmt: skip
         with tqdm(total=steps, desc="train", unit="step", disable=quiet, file=sys.stderr, leave=False) as bar:

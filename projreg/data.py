@@ -50,12 +50,13 @@ def open_readers(roots: list[Path]) -> list[ShardReader]:
 class ShardDataset(Dataset):
     """All samples of one or more dataset directories, indexed ``(global index, augment seed)``."""
 
-    def __init__(self, roots: list[Path], augment: Augment | None = None):
+    def __init__(self, roots: list[Path], augment: Augment | None = None, *, batched: bool = True):
+        """``batched=False``: samples are used one at a time (validation), so sizes may differ."""
         self.readers = open_readers(roots)
         self.offsets = np.cumsum([0] + [len(r) for r in self.readers])
         self.augment = augment
         sizes = {tuple(r.manifest["size"]) for r in self.readers}
-        if len(sizes) > 1 and (augment is None or augment.crop is None):
+        if batched and len(sizes) > 1 and (augment is None or augment.crop is None):
             raise ProjregError(f"datasets have different sizes {sorted(sizes)}; train with a crop")
 
     def __len__(self) -> int:

@@ -76,6 +76,8 @@ class TrainConfig:
                   (0 <= self.warmup_steps < self.schedule_steps, "--warmup-steps must be in [0, --schedule-steps)"),
                   (self.lr > 0, "--lr must be > 0"), (self.workers >= 0, "--workers must be >= 0"),
                   (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
+                  (self.val_every >= 1, "--val-every must be >= 1 (leave out --val to train without validation)"),
+                  (self.val_samples >= 1, "--val-samples must be >= 1"),
                   (0 < self.gamma <= 1, "--gamma must be in (0, 1]")]  # fmt: skip
         for ok, msg in checks:
             if not ok:
@@ -248,7 +250,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
 
     train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
-    val_ds = ShardDataset([Path(p) for p in cfg.val]) if cfg.val else None
+    val_ds = ShardDataset([Path(p) for p in cfg.val], batched=False) if cfg.val else None
     sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
     loader = DataLoader(train_ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.workers,
                         pin_memory=device.type == "cuda", drop_last=True)  # fmt: skip
@@ -327,7 +329,10 @@ def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) ->
     path = out / "config.json"
     try:
         if resume and path.exists():  # keep the original, record the resume
-            info = json.loads(path.read_text()) | {"resumed_with": sys.argv}
+            old = json.loads(path.read_text())
+            before = old.get("resumed_with", [])
+            before = [before] if before and isinstance(before[0], str) else before  # one resume, as 0.1 wrote it
+            info = old | {"resumed_with": [*before, sys.argv]}  # every resume's command, in order
         write_atomic(path, (json.dumps(info, indent=1) + "\n").encode())
     except (OSError, ValueError, ProjsynthError) as e:
         raise ProjregError(f"{path}: cannot write the run config ({e})") from e

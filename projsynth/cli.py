@@ -163,6 +163,8 @@ def transforms_cmd(
 ) -> None:
     """Print the transform table (160 configurations by default)."""
     try:
+        if as_json and as_toml:
+            raise ProjsynthError("--json and --toml exclude each other; pick one output format")
         tab = load_table(table)
     except ProjsynthError as e:
         raise _fail(e) from None

@@ -1,4 +1,4 @@
-"""Image sources: folders of natural / generated images, and scikit-image's bundled photographs.
+"""Image sources: folders of natural / generated images (scikit-image's pictures: bench/real_sources.py).
 
 A source lists its images deterministically, assigns each file to a split by a stable hash of its
 relative path, and loads an image as ``H x W x 3`` uint8 RGB fitted to the dataset size.

@@ -1,4 +1,5 @@
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -12,6 +13,8 @@ from typer.testing import CliRunner
 from projreg import ProjregError
 from projreg.cli import app
 from projreg.train import TrainConfig, load_checkpoint, train
+
+from .conftest import make_shards
 
 
 def _cfg(data, out, **kw):
@@ -54,12 +57,29 @@ def test_no_ssjm_trains_and_records_ablation(tiny_train, tmp_path):
 
 
 def test_validation_rows_and_best_checkpoint(tiny_train, tiny_val, tmp_path):
-    train(_cfg(tiny_train, tmp_path / "r", steps=4, val=[str(tiny_val)], val_every=2))
+    other = make_shards(tmp_path / "val48", size=(48, 64), split="val", transforms="10")  # validated one by one
+    train(_cfg(tiny_train, tmp_path / "r", steps=4, val=[str(tiny_val), str(other)], val_every=2))
     with open(tmp_path / "r" / "metrics.csv", newline="") as f:
         val = [r for r in csv.DictReader(f) if r["kind"] == "val"]
     assert [int(r["step"]) for r in val] == [2, 4]
     assert all(float(r["epe"]) > 0 for r in val)
     assert (tmp_path / "r" / "checkpoints" / "best.pt").exists()
+
+
+@pytest.mark.parametrize(("option", "value"), [("val_every", 0), ("val_samples", 0)])
+def test_validation_cadence_and_size_must_be_positive(tiny_train, tiny_val, tmp_path, option, value):
+    with pytest.raises(ProjregError, match=f"--{option.replace('_', '-')} must be >= 1"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=4, val=[str(tiny_val)], **{option: value}))
+    assert not (tmp_path / "r").exists()
+
+
+def test_config_json_records_every_resume(tiny_train, tmp_path, monkeypatch):
+    run = tmp_path / "r"
+    for steps, argv in ((2, ["first"]), (3, ["second"]), (4, ["third"])):
+        monkeypatch.setattr(sys, "argv", argv)
+        train(_cfg(tiny_train, run, steps=steps), resume=steps > 2)
+    info = json.loads((run / "config.json").read_text())
+    assert info["command"] == ["first"] and info["resumed_with"] == [["second"], ["third"]]
 
 
 def test_refuses_existing_run_without_resume_and_resume_without_run(tiny_train, tmp_path):

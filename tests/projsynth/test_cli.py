@@ -128,6 +128,7 @@ def test_transforms_listing(cli):
     lines = result.stdout.splitlines()
     assert lines[0] == "table builtin-v1: 160 configurations" and len(lines) == 161
     assert [int(line.split()[0]) for line in lines[1:]] == list(range(160))
+    cli.assert_one_line_error(cli.run("transforms", "--json", "--toml"), "--json", "--toml")
 
 
 def test_toml_round_trip_reproduces_the_builtin_table(cli, builtin_toml, planar_ds, copy_dataset):
