@@ -150,3 +150,59 @@ def test_gaussian_noise_is_standard_normal_and_reproducible():
     np.testing.assert_array_equal(gaussian_noise(np.random.default_rng(3), (200, 300, 3)), x)
     odd = gaussian_noise(np.random.default_rng(3), (7,))  # sizes that are not a multiple of 4
     np.testing.assert_array_equal(odd, x.ravel()[:7])
+
+
+# --- the blends by hand: flat images, every parameter away from its identity value ------------------
+
+
+def _flat_composite(blend, p, *, fg=200, alpha=255, bg=100, lit_rows=None, seed=0, h=8, w=12):
+    frame = np.dstack([np.full((h, w, 3), fg, np.uint8), np.full((h, w, 1), alpha, np.uint8)])
+    ys, xs = np.mgrid[0:h, 0:w]
+    xy = np.stack([xs.ravel(), ys.ravel()]).astype(float)  # identity map: P_w = the flat frame
+    lit = np.ones(h * w, bool) if lit_rows is None else (ys < lit_rows).ravel()
+    from projsynth.photometric import composite
+
+    return composite(blend, frame, xy, lit, np.full((h, w, 3), bg, np.uint8), p, np.random.default_rng(seed))
+
+
+PAPER = {"beta": 0.5, "contrast": 0.8, "brightness": 10.0, "gamma": 0.5, "noise_mu": 0.0, "noise_sigma": 0.0}
+
+
+def test_paper_blend_by_hand():
+    # beta*a*(contrast*P + brightness) + (1 - beta*a)*gamma*B = 0.5*(160 + 10) + 0.5*0.5*100 = 110
+    assert (_flat_composite("paper", PAPER) == 110).all()
+    # a = 128/255: wt = 0.2510; 0.2510*170 + 0.7490*50 = 80.12 -> 80
+    assert (_flat_composite("paper", PAPER, alpha=128) == 80).all()
+    # unlit camera pixels see the darkened background only: gamma*B = 50
+    out = _flat_composite("paper", PAPER, lit_rows=3)
+    assert (out[:3] == 110).all() and (out[3:] == 50).all()
+    # noise mean mu, then rounding and clipping to uint8
+    assert (_flat_composite("paper", PAPER | {"noise_mu": 3.4}) == 113).all()
+    assert (_flat_composite("paper", PAPER | {"brightness": 200.0}) == 205).all()  # 0.5*(160 + 200) + 25
+    assert (_flat_composite("paper", PAPER | {"brightness": 500.0}) == 255).all()  # 355, clipped
+    big = _flat_composite("paper", PAPER | {"noise_sigma": 6.0}, h=200, w=300).astype(float)
+    assert abs(big.mean() - 110) < 0.05 and abs(big.std() - np.sqrt(36 + 1 / 12)) < 0.05
+
+
+PHYSICAL = {"ambient": 0.5, "power": 0.5, "defocus_px": 0.0, "gain": 1.0, "vignetting": 0.0, "shot_noise": 0.0,
+            "read_noise": 0.0, "response": 2.2}
+
+
+def test_physical_blend_by_hand():
+    # full light (ambient + power * a * P_lin = 1) returns the reflectance through the response: B
+    assert (_flat_composite("physical", PHYSICAL, fg=255, bg=128) == 128).all()
+    # half the light: 255 * ((128/255)^2.2 * 0.5)^(1/2.2) = 128 * 0.5^(1/2.2) = 93.4
+    assert (_flat_composite("physical", PHYSICAL | {"power": 0.0}, fg=255, bg=128) == 93).all()
+    # gain 1.5 on half the light: 128 * 0.75^(1/2.2) = 112.3
+    assert (_flat_composite("physical", PHYSICAL | {"power": 0.0, "gain": 1.5}, fg=255, bg=128) == 112).all()
+    # a transparent frame adds no light: the ambient term alone
+    assert (_flat_composite("physical", PHYSICAL | {"power": 1.0}, fg=255, bg=128, alpha=0) == 93).all()
+    # vignetting: gain * (1 - v * r2), r2 = normalised squared distance from the centre
+    h, w, v = 8, 12, 0.4
+    out = _flat_composite("physical", PHYSICAL | {"vignetting": v}, fg=255, bg=128, h=h, w=w).astype(float)
+    r2 = ((0 - (w - 1) / 2) ** 2 + (0 - (h - 1) / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
+    assert abs(out[0, 0, 0] - 128 * (1 - v * r2) ** (1 / 2.2)) <= 0.5 + 1e-6
+    # a uniform image is unchanged by defocus blur; read noise has the stated deviation
+    assert (_flat_composite("physical", PHYSICAL | {"defocus_px": 2.0}, fg=255, bg=128) == 128).all()
+    noisy = _flat_composite("physical", PHYSICAL | {"read_noise": 4.0}, fg=255, bg=128, h=200, w=300).astype(float)
+    assert abs(noisy.mean() - 128) < 0.05 and abs(noisy.std() - np.sqrt(16 + 1 / 12)) < 0.05
