@@ -150,19 +150,21 @@ def sample_id(plan: Plan, k: int) -> str:
 
 
 def source_images(plan: Plan, pair: int) -> tuple[np.ndarray, np.ndarray, dict]:
-    """The (natural, generated) images of ``pair`` at the plan's size, and where they came from."""
+    """The (natural, generated) images of ``pair`` at the plan's size, and where they came from:
+    ``{kind: (name, scene theme or None)}`` (a folder image's theme is its first subfolder, when
+    that is one of ``THEMES``)."""
     if plan.sources is None:
-        images, names = [], {}
+        images, origin = [], {}
         for i, kind in enumerate(KINDS):
             ss = np.random.SeedSequence(plan.seed, spawn_key=(_SOURCE, SPLITS.index(plan.split), pair, i))
             rng = np.random.default_rng(ss)
             theme = THEMES[int(rng.integers(len(THEMES)))]
             images.append(render_procedural(kind, theme, plan.size, rng))
-            names[kind] = f"builtin:{kind}/{theme}/{plan.split}-{pair}"
-        return images[0], images[1], names
+            origin[kind] = (f"builtin:{kind}/{theme}/{plan.split}-{pair}", theme)
+        return images[0], images[1], origin
     srcs = [plan.sources[kind][pair] for kind in KINDS]
     imgs = [fit_to_size(load_image(s.path), plan.size, name=str(s.path)) for s in srcs]
-    return imgs[0], imgs[1], {kind: plan.sources[kind][pair].name for kind in KINDS}
+    return imgs[0], imgs[1], {kind: (s.name, s.theme) for kind, s in zip(KINDS, srcs, strict=True)}
 
 
 @dataclass(frozen=True)
@@ -187,7 +189,7 @@ class Sample:
 def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
     """Render sample ``k`` of ``plan`` (``images``: the pair's sources, if the caller has them)."""
     pair, role, tid = sample_key(plan, k)
-    natural, generated, names = images if images is not None else source_images(plan, pair)
+    natural, generated, origin = images if images is not None else source_images(plan, pair)
     projected, background = (natural, generated) if role == 0 else (generated, natural)
     cfg = plan.table.configs[tid]
     ss = np.random.SeedSequence(plan.seed, spawn_key=(_SAMPLE, SPLITS.index(plan.split), pair, role, tid))
@@ -202,7 +204,8 @@ def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] 
         "transform_id": tid,
         "transform": {"name": cfg.name, "family": cfg.family, "severity": cfg.severity,
                       "condition": cfg.condition, "table_version": plan.table.version},
-        "sources": {"projected": names[KINDS[role]], "background": names[KINDS[1 - role]]},
+        "sources": {"projected": origin[KINDS[role]][0], "background": origin[KINDS[1 - role]][0],
+                    "projected_theme": origin[KINDS[role]][1], "background_theme": origin[KINDS[1 - role]][1]},
         "geometry": geometry,
         "photometry": photometry,
         "blend": plan.blend,

@@ -23,6 +23,11 @@ def test_roles_swap_projected_and_background_and_splits_differ():
     r0, r1 = make_sample(plan, 0), make_sample(plan, 1)
     assert r0.params["role"] == "natural_on_generated" and r1.params["role"] == "generated_on_natural"
     assert r0.params["sources"]["projected"] == r1.params["sources"]["background"]
+    from projsynth.procedural import THEMES
+
+    theme = r0.params["sources"]["projected_theme"]  # built-in images: the theme they were drawn with
+    assert theme in THEMES and f"/{theme}/" in r0.params["sources"]["projected"]
+    assert r1.params["sources"]["background_theme"] == theme
     test = make_sample(_plan(transforms="0", split="test"), 0)
     assert not np.array_equal(test.projected, r0.projected)
 

@@ -260,9 +260,10 @@ def test_full_disk_leaves_no_shard_and_resumes(inject, monkeypatch, tmp_path):
 def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
     rng = np.random.default_rng(0)
     for kind in ("nat", "gen"):
-        (tmp_path / kind).mkdir()
+        folder = tmp_path / kind / ("Forest" if kind == "nat" else "")  # natural: scene label from the subfolder
+        folder.mkdir(parents=True)
         for i in range(12):
-            cv2.imwrite(str(tmp_path / kind / f"{kind}{i}.png"), rng.integers(0, 256, (60, 80, 3), np.uint8))
+            cv2.imwrite(str(folder / f"{kind}{i}.png"), rng.integers(0, 256, (60, 80, 3), np.uint8))
     opts = ["--natural", tmp_path / "nat", "--generated", tmp_path / "gen", "--pairs", "1", "--size", "48x64",
             "--transforms", "0-1", "-q"]  # fmt: skip
     for name in ("a", "b"):
@@ -272,13 +273,17 @@ def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
     assert a["num_samples"] == 4 and a["samples"] == b["samples"]
     names = a["sources"]
     assert len(names["natural"]) == len(names["generated"]) == 1
-    assert names["natural"][0].startswith("nat") and names["generated"][0].startswith("gen")
+    assert names["natural"][0].startswith("Forest/nat") and names["generated"][0].startswith("gen")
     assert cli.run("verify", tmp_path / "a", "-q").exit_code == 0
     reader = ShardReader(tmp_path / "a")
     try:  # role 0 projects the natural image, role 1 the generated one, each fitted to 48x64
         r0, r1 = reader.read(0), reader.read(2)
         assert r0["params"]["sources"]["projected"] == names["natural"][0]
         assert r1["params"]["sources"]["projected"] == names["generated"][0]
+        assert (r0["params"]["sources"]["projected_theme"], r0["params"]["sources"]["background_theme"]) == (
+            "forest", None)
+        assert (r1["params"]["sources"]["projected_theme"], r1["params"]["sources"]["background_theme"]) == (
+            None, "forest")
         assert r0["projected"].shape == (48, 64, 3) and not np.array_equal(r0["projected"], r1["projected"])
     finally:
         reader.close()
