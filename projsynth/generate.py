@@ -22,6 +22,7 @@ from .shards import (
     MANIFEST,
     PLAN_FILE,
     assemble_manifest,
+    library_versions,
     read_json,
     shard_is_complete,
     shard_name,
@@ -168,7 +169,7 @@ def _write_one(job: tuple) -> int:
         samples.append(make_sample(plan, k, cache[pair]))
     attrs = {"format_version": FORMAT_VERSION, "generator": f"projsynth {__version__}", "config_hash": config_hash,
              "seed": plan.seed, "shard_index": j, "first_sample": first, "split": plan.split,
-             "table_version": plan.table.version}  # fmt: skip
+             "table_version": plan.table.version, "libraries": library_versions()}  # fmt: skip
     write_shard(out / shard_name(j), samples, attrs)
     return len(samples)
 

@@ -93,6 +93,24 @@ def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
         raise ProjsynthError(f"{path}: cannot write shard ({_why(e)})") from e
 
 
+def library_versions() -> str:
+    """The builds that shape a sample's bytes, as canonical JSON (a shard's ``libraries`` attribute).
+
+    Samples are a pure function of the config and seed for one set of these; another numpy, OpenCV
+    or numba may round differently, so ``gen`` records them instead of hashing them into the config
+    (a resume after an upgrade stays possible, and the manifest shows the mix).
+    """
+    import platform
+
+    import cv2
+    import numba
+    import OpenEXR
+
+    versions = {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
+                "numba": numba.__version__, "h5py": h5py.__version__, "openexr": OpenEXR.__version__}  # fmt: skip
+    return json.dumps(versions, sort_keys=True)
+
+
 def shard_is_complete(path: Path, config_hash: str) -> bool:
     """True when ``path`` is a finished shard of the dataset with ``config_hash``."""
     try:
@@ -112,17 +130,18 @@ def file_sha256(path: Path) -> str:
 
 def assemble_manifest(root: Path, plan_info: dict, num_shards: int, shard_size: int) -> dict:
     """Build and write ``manifest.json`` from the finished shards under ``root``."""
-    shards, samples = [], []
+    shards, samples, builds = [], [], set()
     for j in range(num_shards):
         path = root / shard_name(j)
         with h5py.File(path, "r") as f:
             ids = [s.decode() for s in f["sample_id"][:]]
             hashes = [s.decode() for s in f["sample_hash"][:]]
+            builds.add(f.attrs.get("libraries", "{}"))
         shards.append({"index": j, "file": path.name, "first_sample": j * shard_size, "count": len(ids),
                        "sha256": file_sha256(path), "bytes": path.stat().st_size})  # fmt: skip
         samples += [{"id": i, "sha256": s} for i, s in zip(ids, hashes, strict=True)]
     manifest = {**plan_info, "shard_size": shard_size, "num_samples": len(samples), "shards": shards,
-                "samples": samples}  # fmt: skip
+                "libraries": [json.loads(b) for b in sorted(builds)], "samples": samples}  # fmt: skip
     write_json_atomic(root / MANIFEST, manifest)
     return manifest
 

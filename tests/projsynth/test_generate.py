@@ -34,6 +34,11 @@ def test_samples_do_not_depend_on_workers_or_shard_size(cli, planar_ds, tmp_path
     assert a["config_hash"] == b["config_hash"]  # the shard size is not part of the samples' config
     assert a["samples"] == b["samples"]
     assert len({s["sha256"] for s in a["samples"]}) == 40  # every sample differs from every other
+    import numba
+
+    assert a["libraries"] == b["libraries"] and len(a["libraries"]) == 1  # the builds that wrote the bytes
+    assert (a["libraries"][0]["numpy"], a["libraries"][0]["opencv"], a["libraries"][0]["numba"]) == (
+        np.__version__, cv2.__version__, numba.__version__)
 
     ra, rb = ShardReader(planar_ds), ShardReader(other)
     try:
