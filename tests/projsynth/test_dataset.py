@@ -34,3 +34,24 @@ def test_roles_swap_projected_and_background_and_splits_differ():
 
 def test_parse_size():
     assert parse_size("384x512") == (384, 512)
+
+
+def test_default_table_covers_every_flow_bucket_in_every_family():
+    """DESIGN: the built-in table covers s0-10, s10-40 and s40+ substantially (docs/transforms.md:
+    26 / 49 / 25 % over 320 samples). One pair, role 0, all 160 configurations at 384 x 512."""
+    from projsynth.dataset import source_images
+    from projsynth.verify import bucket_of
+
+    plan = resolve_plan(size=(384, 512), seed=0, split="train", pairs=1, transforms=None, blend="paper")
+    images = source_images(plan, 0)
+    counts: dict[str, np.ndarray] = {}
+    for k in range(160):  # role 0: k < 160
+        s = make_sample(plan, k, images)
+        mag = np.hypot(s.flow[..., 0], s.flow[..., 1])[s.valid]
+        family = s.params["transform"]["family"]
+        counts[family] = counts.get(family, 0) + np.array([m.sum() for m in bucket_of(mag)])
+    assert len(counts) == 8
+    total = sum(counts.values())
+    assert (total / total.sum() > 0.18).all(), total / total.sum()  # measured 0.25 / 0.52 / 0.23
+    for family, c in counts.items():
+        assert (c / c.sum() > 0.12).all(), (family, c / c.sum())  # measured >= 0.17 in each family
