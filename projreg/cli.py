@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Annotated, NoReturn
 
@@ -103,6 +104,11 @@ def train(
         if torchrun:
             _end_torchrun_worker(failure.exit_code)
         raise failure from None
+    except Exception:
+        if torchrun:  # e.g. gloo's "connection closed" when another rank has failed: traceback, exit 1
+            traceback.print_exc()
+            _end_torchrun_worker(1)
+        raise
     if not quiet:
         typer.echo(f"{out}: step {summary['step']}, loss {summary['loss']:.4f}, best val EPE {summary['best_epe']}",
                    err=True)  # fmt: skip

@@ -76,7 +76,7 @@ class TrainConfig:
                   (0 <= self.warmup_steps < self.schedule_steps, "--warmup-steps must be in [0, --schedule-steps)"),
                   (self.lr > 0, "--lr must be > 0"), (self.workers >= 0, "--workers must be >= 0"),
                   (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
-                  (self.val_every >= 1, "--val-every must be >= 1 (leave out --val to train without validation)"),
+                  (self.val_every >= 1 or not self.val, "--val-every must be >= 1"),
                   (self.val_samples >= 1, "--val-samples must be >= 1"),
                   (0 < self.gamma <= 1, "--gamma must be in (0, 1]")]  # fmt: skip
         for ok, msg in checks:
@@ -195,6 +195,7 @@ class _Log:
             for k, v in row.items():
                 if isinstance(v, float) and math.isfinite(v):
                     self.tb.add_scalar(f"{row['kind']}/{k}", v, row["step"])
+            self.tb.flush()  # on disk like the CSV row: a torchrun worker ends with os._exit
 
 
 def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None) -> dict:

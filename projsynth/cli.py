@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Annotated
 
@@ -37,6 +38,11 @@ def _bar(total: int | None, desc: str, quiet: bool) -> tqdm:
     return tqdm(total=total, desc=desc, unit="sample", disable=quiet, file=sys.stderr, leave=False)
 
 
+def _set_total(bar: tqdm, n: int) -> None:
+    bar.total = n
+    bar.refresh()
+
+
 SPLIT_HELP = "train, val or test (disjoint source images), or all (every image: a held-out folder)."
 
 
@@ -63,13 +69,9 @@ def gen(
                             blend=blend, table_path=table, natural=natural, generated=generated)  # fmt: skip
         for line in plan.skipped:
             typer.echo(f"projsynth: warning: skipped {line}", err=True)
-        with _bar(plan.num_samples, "gen", quiet) as bar:
-            def total(n: int) -> None:  # --shards: the selected shards' samples, not the whole plan's
-                bar.total = n
-                bar.refresh()
-
+        with _bar(plan.num_samples, "gen", quiet) as bar:  # --shards: sized to the selected shards
             result = generate(plan, out, shard_size=shard_size, shards=shards, workers=workers, progress=bar.update,
-                              progress_total=total)  # fmt: skip
+                              progress_total=partial(_set_total, bar))  # fmt: skip
     except ProjsynthError as e:
         raise _fail(e) from None
     if not quiet:
@@ -135,10 +137,11 @@ def export(
     """Write PNGs, the flow .exr bytes unchanged, Middlebury .flo and a colour visualisation."""
     try:
         with _bar(None, "export", quiet) as bar:
-            n = export_samples(root, out, limit, progress=bar.update)
+            n = export_samples(root, out, limit, progress=bar.update, progress_total=partial(_set_total, bar))
     except ProjsynthError as e:
         raise _fail(e) from None
-    typer.echo(f"{out}: {n} samples exported", err=True)
+    if not quiet:
+        typer.echo(f"{out}: {n} samples exported", err=True)
 
 
 @app.command()

@@ -20,7 +20,8 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
     write_atomic(path, data.tobytes())
 
 
-def export(root: Path, out: Path, limit: int | None = None, progress: Callable[[int], None] | None = None) -> int:
+def export(root: Path, out: Path, limit: int | None = None, progress: Callable[[int], None] | None = None,
+           progress_total: Callable[[int], None] | None = None) -> int:
     """Write each sample as ``ID_projected.png``, ``ID_captured.png``, ``ID_valid.png``,
     ``ID_flow.exr`` (the stored bytes, unchanged), ``ID_flow.flo`` and ``ID_flow.png`` (colour wheel).
 
@@ -37,6 +38,8 @@ def export(root: Path, out: Path, limit: int | None = None, progress: Callable[[
     except OSError as e:
         raise ProjsynthError(f"--out {out}: cannot create directory ({e.strerror})") from e
     n = len(reader) if limit is None else min(limit, len(reader))
+    if progress_total:
+        progress_total(n)
     try:
         for k in range(n):
             s = reader.read(k, flow_exr=True)

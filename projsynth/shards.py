@@ -136,7 +136,8 @@ def assemble_manifest(root: Path, plan_info: dict, num_shards: int, shard_size: 
         with h5py.File(path, "r") as f:
             ids = [s.decode() for s in f["sample_id"][:]]
             hashes = [s.decode() for s in f["sample_hash"][:]]
-            builds.add(f.attrs.get("libraries", "{}"))
+            if "libraries" in f.attrs:  # (not written before 0.2.0)
+                builds.add(f.attrs["libraries"])
         shards.append({"index": j, "file": path.name, "first_sample": j * shard_size, "count": len(ids),
                        "sha256": file_sha256(path), "bytes": path.stat().st_size})  # fmt: skip
         samples += [{"id": i, "sha256": s} for i, s in zip(ids, hashes, strict=True)]
@@ -180,11 +181,14 @@ class ShardReader:
     float32 projected->captured, valid ``(H, W)`` bool, and the parameter dict.
     """
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, max_open: int = 64):
+        """``max_open``: HDF5 files kept open per process; the least recently read is closed first, so
+        a pass over a dataset of any size stays within the process's file-descriptor limit."""
         self.root = Path(root)
         self.manifest = load_manifest(self.root)
         self.shard_size = self.manifest["shard_size"]
-        self._files: dict[int, h5py.File] = {}
+        self.max_open = max(1, max_open)
+        self._files: dict[int, h5py.File] = {}  # in order of last use
         self._pid = os.getpid()
 
     def __len__(self) -> int:
@@ -193,9 +197,13 @@ class ShardReader:
     def _file(self, j: int) -> h5py.File:
         if self._pid != os.getpid():  # never share HDF5 handles across a fork
             self._files, self._pid = {}, os.getpid()
-        if j not in self._files:
-            self._files[j] = open_shard(self.root / shard_name(j))
-        return self._files[j]
+        f = self._files.pop(j, None)
+        if f is None:
+            if len(self._files) >= self.max_open:
+                self._files.pop(next(iter(self._files))).close()
+            f = open_shard(self.root / shard_name(j))
+        self._files[j] = f  # now the most recently used
+        return f
 
     def read(self, k: int, with_params: bool = True, flow_exr: bool = False) -> dict:
         """Sample ``k``; ``with_params=False`` skips parsing the parameter JSON (training needs none),

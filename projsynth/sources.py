@@ -26,7 +26,6 @@ MIN_SOURCE_SIDE = 32
 SPLITS = ("train", "val", "test", "all")
 
 
-
 @dataclass(frozen=True)
 class SourceImage:
     """Where one source image comes from.

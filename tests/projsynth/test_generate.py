@@ -322,3 +322,18 @@ def test_reader_decodes_on_a_thread_names_a_bad_flow_and_survives_a_fork(planar_
             child.kill()
     finally:
         reader.close()
+
+
+def test_reader_keeps_at_most_max_open_files(planar_ds):
+    """A pass over a dataset of any size stays within the file-descriptor limit (5 shards, 2 open)."""
+    small, full = ShardReader(planar_ds, max_open=2), ShardReader(planar_ds)
+    try:
+        order = [*range(40), *np.random.default_rng(0).permutation(40).tolist()]
+        for k in order:
+            np.testing.assert_array_equal(small.read(k)["captured"], full.read(k)["captured"])
+            assert len(small._files) <= 2 and all(f.id.valid for f in small._files.values())
+        assert len(full._files) == 5
+        assert next(reversed(small._files)) == order[-1] // 8  # the last one read is kept
+    finally:
+        small.close()
+        full.close()

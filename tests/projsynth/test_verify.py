@@ -67,7 +67,6 @@ def test_verify_names_only_the_damaged_shard(cli, planar_ds, copy_dataset, damag
     assert all(str(root / shard_name(j)) in s for s in lines), lines
 
 
-
 def _drop_last_shard(m: dict) -> None:
     last = m["shards"].pop()
     m["samples"] = m["samples"][: last["first_sample"]]
@@ -94,6 +93,22 @@ def test_manifest_that_does_not_tile_the_plan_fails_verify(cli, planar_ds, copy_
     path.write_text(json.dumps(manifest))
     lines = _problems(cli, cli.run("verify", root, "-q"))
     assert any(str(path) in s and message in s for s in lines), lines
+
+
+@pytest.mark.parametrize(("attr", "value"), [("first_sample", 0), ("count", 7), ("generator", "projsynth 9.9.9"),
+                                             ("format_version", 2)])  # fmt: skip
+def test_shard_attribute_that_disagrees_with_the_manifest_fails_verify(cli, planar_ds, copy_dataset, attr, value):
+    root = copy_dataset(planar_ds)
+    shard = root / shard_name(1)
+    with h5py.File(shard, "r+") as f:
+        f.attrs[attr] = value
+    path = root / "manifest.json"
+    manifest = json.loads(path.read_text())
+    manifest["shards"][1]["sha256"] = file_sha256(shard)  # the file hash alone would not notice
+    path.write_text(json.dumps(manifest))
+    lines = _problems(cli, cli.run("verify", root, "-q"))
+    assert lines == [f"projsynth: verify: {shard}: attributes do not match the manifest (config hash, shard index, "
+                     "first sample, count, format version or generator)"]
 
 MANIFEST_DAMAGE = [
     "truncated",
