@@ -18,7 +18,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 
 
 @app.callback()
-def main() -> None:
+def _root() -> None:
     """Train, benchmark and apply the SSJM projector-camera registration network."""
 
 
@@ -227,5 +227,12 @@ def compensate(
         raise _fail(e) from None
 
 
+def main() -> None:
+    """The ``projreg`` console command (usage errors as one line, as in ``projsynth``)."""
+    from projsynth.cli import run_console
+
+    run_console(app, "projreg")
+
+
 if __name__ == "__main__":
-    app()
+    main()

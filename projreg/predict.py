@@ -55,19 +55,12 @@ def default_device() -> torch.device:
 
 def load_model(path: Path, device: torch.device) -> SSJMFlow:
     """A checkpoint written by ``projreg train``, on ``device``, in eval mode; errors name the file."""
-    try:
-        ckpt = load_checkpoint(Path(path))
-    except ProjregError as e:  # torch's own message spans lines and suggests weights_only=False
-        cause = e.__cause__
-        if cause is None:
-            raise
-        raise ProjregError(f"{path}: not a readable checkpoint ({type(cause).__name__}); "
-                           "pass a file written by `projreg train`") from cause  # fmt: skip
-    require_model(ckpt, path)
+    ckpt = require_model(load_checkpoint(Path(path)), path)
     try:
         model = model_from_checkpoint(ckpt)
-    except (TypeError, ValueError, RuntimeError, ProjregError) as e:
-        raise ProjregError(f"{path}: checkpoint does not match the model ({type(e).__name__}: {e})") from e
+    except (ValueError, ProjregError) as e:
+        raise ProjregError(f"{path}: weights do not match the checkpoint's model_config ({e}); "
+                           "pass a checkpoint as `projreg train` or `projreg export` wrote it") from e  # fmt: skip
     return model.to(device).eval()
 
 

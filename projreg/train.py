@@ -113,9 +113,10 @@ def load_checkpoint(path: Path) -> dict:
         return torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise ProjregError(f"{path}: no such checkpoint") from None
-    except Exception as e:  # torch raises many types (and multi-line messages) for corrupt files
-        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}: {first}); "
+    except IsADirectoryError:
+        raise ProjregError(f"{path}: is a folder; pass a checkpoint file (RUN/checkpoints/last.pt)") from None
+    except Exception as e:  # torch raises many types, with multi-line messages that suggest weights_only=False
+        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}); "
                            "pass a checkpoint written by `projreg train`") from e  # fmt: skip
 
 
@@ -129,7 +130,13 @@ def export_checkpoint(src: Path, dst: Path) -> dict:
     Returns:
         The exported dictionary.
     """
+    if Path(dst).resolve() == Path(src).resolve():
+        raise ProjregError(f"--out {dst}: is the checkpoint being exported; write the export to another file")
     ckpt = require_model(load_checkpoint(Path(src)), src)
+    try:
+        model_from_checkpoint(ckpt)  # what bench and predict will do with the export
+    except (ValueError, ProjregError) as e:
+        raise ProjregError(f"{src}: weights do not match the checkpoint's model_config ({e}); not exported") from e
     slim = {k: ckpt[k] for k in ("model", "model_config", "step", "best_epe", "train_config", "version") if k in ckpt}
     slim["model"] = {k: v.detach().clone().contiguous() for k, v in slim["model"].items()}  # no shared storage
     try:
@@ -148,8 +155,16 @@ def require_model(ckpt, path: Path) -> dict:
 
 
 def model_from_checkpoint(ckpt: dict) -> SSJMFlow:
-    model = SSJMFlow(**ckpt["model_config"])
-    model.load_state_dict(ckpt["model"])
+    """The network a checkpoint describes; a mismatch between weights and config is one-line ValueError."""
+    try:
+        model = SSJMFlow(**ckpt["model_config"])
+        model.load_state_dict(ckpt["model"])
+    except (TypeError, RuntimeError) as e:  # load_state_dict lists every mismatched tensor on its own line
+        lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+        raise ValueError(" ".join(lines[1:3] if len(lines) > 1 else lines)) from e
+    bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        raise ValueError(f"non-finite weights in {bad[0]}" + (f" and {len(bad) - 1} more" if len(bad) > 1 else ""))
     return model
 
 
@@ -198,6 +213,9 @@ class _Log:
             self.tb.flush()  # on disk like the CSV row: a torchrun worker ends with os._exit
 
 
+_RESUME_KEYS = ("model", "optimizer", "scheduler", "rng", "step", "best_epe", "train_config")
+
+
 def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None) -> dict:
     """Train ``cfg.model`` on ``cfg.data``; returns a summary (final step, last loss, best EPE)."""
     cfg.validate()
@@ -230,13 +248,17 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     step, best = 0, float("inf")
     if resume:
         ck = load_checkpoint(last_path)
+        missing = [k for k in _RESUME_KEYS if not isinstance(ck, dict) or k not in ck]
+        if missing:
+            raise ProjregError(f"--resume: {last_path} lacks {', '.join(missing)} (an exported checkpoint?); "
+                               "resume needs the last.pt that `projreg train` wrote")  # fmt: skip
         old = ck["train_config"]
         for key, option in (("model", "--model"), ("use_ssjm", "--no-ssjm"), ("schedule_steps", "--schedule-steps"),
                             ("warmup_steps", "--warmup-steps"), ("lr", "--lr"), ("batch_size", "--batch-size"),
                             ("seed", "--seed"), ("data", "--data"), ("crop", "--crop"), ("gamma", "gamma"),
                             ("weight_decay", "weight decay"), ("grad_clip", "gradient clipping"),
                             ("amp", "--amp")):  # fmt: skip
-            if _plain(old[key]) != _plain(getattr(cfg, key)):
+            if _plain(old.get(key), key) != _plain(getattr(cfg, key), key):
                 raise ProjregError(f"--resume: {last_path} was trained with {option} {old[key]}, not "
                                    f"{getattr(cfg, key)}; resume with the same value")  # fmt: skip
         if int(ck["step"]) > cfg.steps:
@@ -306,8 +328,11 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     return summary
 
 
-def _plain(value):
-    """Tuples and lists compare equal (a checkpoint stores the crop as a list)."""
+def _plain(value, key: str = ""):
+    """Tuples and lists compare equal (a checkpoint stores the crop as a list); dataset paths compare
+    resolved (``data`` and ``./data`` are the same dataset)."""
+    if key == "data" and isinstance(value, tuple | list):
+        return [str(Path(p).resolve()) for p in value]
     return list(value) if isinstance(value, tuple | list) else value
 
 

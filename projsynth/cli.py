@@ -183,3 +183,33 @@ def transforms_cmd(
         for c in tab.configs:
             g = ", ".join(f"{k}={a:g}..{b:g}" for k, (a, b) in c.geometry.items() if k not in ("fov_deg",))
             typer.echo(f"{c.id:4d} {c.name:30s} {g}")
+
+
+def run_console(application: typer.Typer, prog: str) -> None:
+    """Run a Typer app as a console command whose usage errors are one line too.
+
+    Typer prints a bad option value, a missing option or an unknown command as a framed, multi-line
+    box; here it is ``PROG: error: MESSAGE; see `PROG COMMAND --help``` and exit 2, like every other
+    error of these tools.
+    """
+    try:
+        code = application(prog_name=prog, standalone_mode=False)
+    except typer.Abort:
+        typer.echo(f"{prog}: aborted", err=True)
+        code = 1
+    except typer.TyperException as e:  # click's usage errors
+        ctx = getattr(e, "ctx", None)
+        where = ctx.command_path if ctx is not None else prog
+        message = " ".join(e.format_message().split()).rstrip(".")
+        typer.echo(f"{prog}: error: {message}; see `{where} --help`", err=True)
+        code = getattr(e, "exit_code", 2)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def main() -> None:
+    """The ``projsynth`` console command."""
+    run_console(app, "projsynth")
+
+
+if __name__ == "__main__":
+    main()

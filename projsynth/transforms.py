@@ -217,9 +217,15 @@ def table_to_toml(table: TransformTable) -> str:
 
 
 def parse_selection(spec: str | None, n: int) -> list[int]:
-    """``"0-15"``, ``"0,5,9"``, ``"0-3,10"`` or None (all) -> sorted unique ids in ``[0, n)``."""
-    if spec is None or spec.strip() in ("", "all"):
+    """``"0-15"``, ``"0,5,9"``, ``"0-3,10"``, ``"all"`` or None (all) -> sorted unique ids in ``[0, n)``.
+
+    An empty string is refused rather than read as "all" (an unset shell variable should not silently
+    generate the whole table).
+    """
+    if spec is None or spec.strip() == "all":
         return list(range(n))
+    if not spec.strip():
+        raise ProjsynthError("--transforms: empty; give ids such as 0-15 or 0,5,9, or all")
     ids: set[int] = set()
     for part in spec.split(","):
         part = part.strip()

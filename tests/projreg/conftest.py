@@ -37,6 +37,7 @@ def _assert_one_line_error(result, *needles):
     assert len(lines) == 1 and lines[0].startswith("projreg: error: "), lines
     for needle in needles:
         assert str(needle) in lines[0], (needle, lines[0])
+    return lines[0]
 
 
 @pytest.fixture

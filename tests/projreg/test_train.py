@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from projreg import ProjregError
 from projreg.cli import app
-from projreg.train import TrainConfig, load_checkpoint, train
+from projreg.train import TrainConfig, export_checkpoint, load_checkpoint, train
 
 from .conftest import make_shards
 
@@ -208,4 +208,41 @@ def test_export_of_a_non_checkpoint_is_one_line(tmp_path, one_line_error):
     bad.write_bytes(b"not a checkpoint")
     result = CliRunner().invoke(app, ["export", "--checkpoint", str(bad), "--out", str(tmp_path / "x.pt")])
     one_line_error(result, bad)
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_export_refuses_to_overwrite_its_source_and_resume_refuses_an_export(tiny_train, tmp_path, one_line_error):
+    run = tmp_path / "r"
+    train(_cfg(tiny_train, run, steps=2))
+    last = run / "checkpoints" / "last.pt"
+    before = last.read_bytes()
+    one_line_error(CliRunner().invoke(app, ["export", "--checkpoint", str(last), "--out", str(last)]), last,
+                   "another file")  # fmt: skip
+    assert last.read_bytes() == before  # the training state survives
+    export_checkpoint(last, tmp_path / "slim.pt")
+    (tmp_path / "slim.pt").replace(last)  # a user copies an export over last.pt
+    with pytest.raises(ProjregError, match=r"lacks optimizer, scheduler, rng .*resume needs the last.pt"):
+        train(_cfg(tiny_train, run, steps=4), resume=True)
+
+
+def test_resume_accepts_the_same_dataset_by_another_path(tiny_train, tmp_path, monkeypatch):
+    run = tmp_path / "r"
+    train(_cfg(tiny_train, run, steps=2))
+    monkeypatch.chdir(tiny_train.parent)
+    assert train(_cfg(f"./{tiny_train.name}", run, steps=3), resume=True)["step"] == 3
+
+
+@pytest.mark.parametrize("damage", ["nan weight", "wrong shape"])
+def test_checkpoint_whose_weights_are_unusable_is_one_line(tiny_ckpt, tmp_path, one_line_error, damage):
+    ck = load_checkpoint(tiny_ckpt)
+    name = next(k for k, v in ck["model"].items() if v.is_floating_point() and v.ndim == 2)
+    if damage == "nan weight":
+        ck["model"][name] = ck["model"][name].clone().fill_(float("nan"))
+    else:
+        ck["model"][name] = ck["model"][name][:, :-1].clone()
+    bad = tmp_path / "bad.pt"
+    torch.save(ck, bad)
+    result = CliRunner().invoke(app, ["export", "--checkpoint", str(bad), "--out", str(tmp_path / "x.pt")])
+    line = one_line_error(result, bad, name)
+    assert ("non-finite" in line) == (damage == "nan weight")
     assert not (tmp_path / "x.pt").exists()

@@ -2,6 +2,8 @@
 
 import json
 import re
+import subprocess
+import sys
 
 import pytest
 import typer
@@ -33,6 +35,7 @@ BAD_GEN = [
     (["--transforms", "0-999"], "--transforms"),
     (["--transforms", "a-b"], "--transforms"),
     (["--transforms", "3-1"], "--transforms"),
+    (["--transforms", " "], "--transforms"),
     (["--split", "foo"], "--split"),
     (["--blend", "foo"], "--blend"),
     (["--pairs", "0"], "--pairs"),
@@ -224,3 +227,33 @@ def test_a_dataset_from_another_generator_version_is_named_not_resumed(cli, plan
         cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8"),
         "--out", "made by projsynth 0.1.0", "delete it to regenerate",
     )  # fmt: skip
+
+
+# --- usage errors through the console entry points --------------------------------------------------
+
+USAGE_ERRORS = [
+    ("projsynth", ["gen", "--out", "x", "--pairs", "abc"], "Invalid value for '--pairs'", "projsynth gen --help"),
+    ("projsynth", ["gen"], "Missing option '--out'", "projsynth gen --help"),
+    ("projsynth", ["nope"], "No such command 'nope'", "projsynth --help"),
+    ("projreg", ["train", "--data", "d", "--out", "o", "--steps", "x"], "Invalid value for '--steps'",
+     "projreg train --help"),
+    ("projreg", ["predict", "--max-side", "abc"], "Invalid value for '--max-side'", "projreg predict --help"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("tool", "args", "message", "hint"), USAGE_ERRORS,
+                         ids=[" ".join(a) for _, a, _, _ in USAGE_ERRORS])  # fmt: skip
+def test_usage_errors_are_one_line_from_the_console_commands(tool, args, message, hint, tmp_path):
+    done = subprocess.run([sys.executable, "-m", f"{tool}.cli", *args], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)  # fmt: skip
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 2 and len(lines) == 1, (done.returncode, done.stderr)
+    assert lines[0].startswith(f"{tool}: error: {message}") and lines[0].endswith(f"see `{hint}`"), lines[0]
+    assert not list(tmp_path.iterdir())
+
+
+def test_console_help_exits_0():
+    for tool in ("projsynth", "projreg"):
+        done = subprocess.run([sys.executable, "-m", f"{tool}.cli", "--help"], capture_output=True, text=True,
+                              timeout=120)  # fmt: skip
+        assert done.returncode == 0 and "Usage:" in done.stdout, (tool, done.stderr)
