@@ -129,11 +129,11 @@ def resolve_plan(
         chosen[kind] = tuple(good)
     n = min(len(v) for v in chosen.values())
     if n == 0 or (pairs is not None and n < pairs):
-        raise ProjsynthError(
-            f"--pairs: the {split} split has {n} usable pairs "
-            f"({len(chosen['natural'])} natural, {len(chosen['generated'])} generated images); "
-            "lower --pairs or add images"
-        )
+        short = [k for k in KINDS if len(chosen[k]) == n]
+        why = f"; {len(skipped)} unreadable file(s) skipped, e.g. {skipped[0]}" if skipped else ""
+        fix = "add images to the folder" if n == 0 or pairs is None else "lower --pairs or add images"
+        raise ProjsynthError(f"--{short[0]}: the {split} split has only {n} usable {short[0]} image(s) "
+                             f"for {pairs or 'at least 1'} pair(s){why}; {fix}")  # fmt: skip
     chosen = {k: v[:n] for k, v in chosen.items()}
     return Plan(size, seed, split, n, selected, blend, table, chosen, tuple(skipped))
 

@@ -171,8 +171,9 @@ def write_atomic(path: Path, data: bytes) -> None:
 def read_flow_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     """Read an EXR flow file from disk; returns ``(flow, valid, header)`` as :func:`decode_flow_exr`."""
     path = Path(path)
+    data = _read_bytes(path)  # its error already names the file
     try:
-        return decode_flow_exr(_read_bytes(path))
+        return decode_flow_exr(data)
     except ProjsynthError as e:
         raise ProjsynthError(f"{path}: {e}") from e
 

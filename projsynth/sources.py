@@ -84,7 +84,7 @@ def load_image(path: Path) -> np.ndarray:
         data = np.fromfile(path, np.uint8)
     except OSError as err:
         reason = err.strerror or str(err)
-        raise ProjsynthError(f"{path}: cannot read image ({reason}); remove it or fix it") from err
+        raise ProjsynthError(f"{path}: cannot read image ({reason}); check the path") from err
     if data.size == 0:
         raise ProjsynthError(f"{path}: cannot read image (empty file); remove it or fix it")
     try:

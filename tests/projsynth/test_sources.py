@@ -1,5 +1,6 @@
 import dataclasses
 import hashlib
+import re
 import struct
 import subprocess
 import sys
@@ -142,7 +143,25 @@ def test_unreadable_files_raise_with_path(tmp_path, name):
     path = bad_files(tmp_path).get(name, tmp_path / "missing.png")
     with pytest.raises(ProjsynthError, match="cannot read image") as err:
         load_image(path)
-    assert str(path) in str(err.value) and "remove it or fix it" in str(err.value)
+    assert str(path) in str(err.value)
+    assert ("check the path" if name == "missing" else "remove it or fix it") in str(err.value)
+
+
+def test_a_folder_with_no_readable_image_names_the_folder_and_why(tmp_path):
+    from projsynth.dataset import resolve_plan
+
+    (tmp_path / "nat").mkdir()
+    for name in ("a", "b", "c"):
+        (tmp_path / "nat" / f"{name}.png").write_bytes(b"not a png")
+    (tmp_path / "gen").mkdir()
+    for i in range(4):
+        cv2.imwrite(str(tmp_path / "gen" / f"g{i}.png"), np.full((40, 40, 3), 60 * i, np.uint8))
+    with pytest.raises(ProjsynthError) as err:
+        resolve_plan(size=(32, 32), seed=0, split="all", pairs=1, transforms="0", blend="paper",
+                     natural=tmp_path / "nat", generated=tmp_path / "gen")  # fmt: skip
+    msg = str(err.value)
+    assert msg.startswith("--natural: the all split has only 0 usable natural image(s) for 1 pair(s); 3 unreadable")
+    assert re.search(r"nat/[abc]\.png: cannot read image", msg) and msg.endswith("; add images to the folder")
 
 
 # --- fit_to_size ---------------------------------------------------------------------------------
