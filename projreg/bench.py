@@ -32,13 +32,14 @@ import numpy as np
 import torch
 
 from projsynth import ProjsynthError
+from projsynth.flowio import write_atomic_all
 from projsynth.shards import ShardReader
 
 from . import ProjregError
 from .baselines import make_baseline
 from .evaluate import predict_flow, sample_indices
 from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
-from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint, write_atomic
+from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint
 from .refine import GeometricRefiner
 
 DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
@@ -314,10 +315,12 @@ def to_markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` (UTF-8) atomically: temporary file, fsync, rename."""
-    write_atomic(path, text.encode())
-
-
-def write_json(path: Path, report: dict) -> None:
-    write_text_atomic(path, json.dumps(report, indent=1) + "\n")
+def write_outputs(report: dict, *, json_path: Path | None, markdown_path: Path | None) -> None:
+    """The report as JSON and/or Markdown, all or nothing (one unwritable path leaves neither)."""
+    files = [(Path(json_path), (json.dumps(report, indent=1) + "\n").encode())] if json_path else []
+    if markdown_path:
+        files.append((Path(markdown_path), to_markdown(report).encode()))
+    try:
+        write_atomic_all(files)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e

@@ -165,10 +165,7 @@ def bench(
 
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
                                    limit=limit, progress=progress)  # fmt: skip
-        if json_out is not None:
-            lib.write_json(json_out, report)
-        if markdown is not None:
-            lib.write_text_atomic(markdown, lib.to_markdown(report))
+        lib.write_outputs(report, json_path=json_out, markdown_path=markdown)  # both or neither
         violations = lib.check_thresholds(report, thresholds)
     except ProjregError as e:
         raise _fail(e) from None

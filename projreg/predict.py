@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from projsynth import ProjsynthError, flowio
-from projsynth.flowio import flow_to_color, write_flow_exr
+from projsynth.flowio import encode_flow_exr, flow_to_color, write_atomic_all
 from projsynth.sources import list_images, load_image
 
 from . import ProjregError
@@ -185,16 +185,13 @@ def predict(
         flow = predict_resized(net, img0, img1, device, max_side)
         if refiner is not None:
             flow = refiner.refine(img0, img1, flow)[0]
+        files = [(job.out, encode_flow_exr(flow, np.ones(flow.shape[:2], bool), job.sample_id))]
+        if job.viz is not None:
+            files.append((job.viz, _png(job.viz, flow_to_color(flow))))
         try:
-            job.out.parent.mkdir(parents=True, exist_ok=True)
-            write_flow_exr(job.out, flow, np.ones(flow.shape[:2], bool), job.sample_id)
-            if job.viz is not None:
-                job.viz.parent.mkdir(parents=True, exist_ok=True)
-                _write_png(job.viz, flow_to_color(flow))
+            write_atomic_all(files)  # the flow and its picture, or neither
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e
-        except OSError as e:  # mkdir
-            raise ProjregError(f"{e.filename}: cannot create ({e.strerror or e}); check the path") from e
         if progress:
             progress(k + 1, len(jobs))
     return [job.out for job in jobs]
@@ -207,11 +204,15 @@ def _load(path: Path) -> np.ndarray:
         raise ProjregError(str(e)) from e
 
 
-def _write_png(path: Path, rgb: np.ndarray) -> None:
+def _png(path: Path, rgb: np.ndarray) -> bytes:
     ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise ProjregError(f"{path}: PNG encoding failed")
-    write_atomic(path, data.tobytes())
+    return data.tobytes()
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    write_atomic(path, _png(path, rgb))
 
 
 def write_atomic(path: Path, data: bytes) -> None:

@@ -225,6 +225,9 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     if distributed:
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
     rank, world = (dist.get_rank(), dist.get_world_size()) if distributed else (0, 1)
+    # the data first: a bad --data or --val leaves --out untouched
+    train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
+    val_ds = ShardDataset([Path(p) for p in cfg.val], batched=False) if cfg.val else None
     out = Path(cfg.out)
     ckpt_dir = out / "checkpoints"
     last_path = ckpt_dir / "last.pt"
@@ -272,8 +275,6 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         _write_config(out, cfg, model, resume)
     log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
 
-    train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
-    val_ds = ShardDataset([Path(p) for p in cfg.val], batched=False) if cfg.val else None
     sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
     loader = DataLoader(train_ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.workers,
                         pin_memory=device.type == "cuda", drop_last=True)  # fmt: skip

@@ -153,19 +153,38 @@ def _read_bytes(path: Path) -> bytes:
 
 def write_atomic(path: Path, data: bytes) -> None:
     """Write to a temporary name in the same directory, fsync, then rename: no half-written file."""
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    write_atomic_all([(path, data)])
+
+
+def write_atomic_all(files: list[tuple[Path, bytes]]) -> None:
+    """Write several files all or nothing: every one to a temporary name (fsync) first, then rename
+    them; if any cannot be written, the temporaries are removed and no destination is touched.
+
+    Raises:
+        ProjsynthError: naming the file that could not be written (or created as a folder).
+    """
+    staged: list[tuple[Path, Path]] = []
     try:
-        try:
-            with open(tmp, "xb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
+        for path, data in files:
+            path = Path(path)
+            tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                with open(tmp, "xb") as f:
+                    staged.append((tmp, path))
+                    f.write(data)
+                    f.flush()
+                    os.fsync(f.fileno())
+            except OSError as e:
+                raise ProjsynthError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e
+        for tmp, path in staged:
+            try:
+                os.replace(tmp, path)
+            except OSError as e:
+                raise ProjsynthError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e
+    finally:
+        for tmp, _ in staged:
             tmp.unlink(missing_ok=True)
-            raise
-    except OSError as e:
-        raise ProjsynthError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e
 
 
 def read_flow_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:

@@ -238,3 +238,9 @@ def test_errors_name_the_path(tiny_train, tmp_path, one_line_error):
     one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "nope", "-q"), "nope")
     one_line_error(_cli("bench", "--data", tiny_train, "--limit", "0", "-q"), "--limit")
     one_line_error(_cli("bench", "--data", tiny_train, "--model", bad_ckpt, "--model", bad_ckpt, "-q"), "twice")
+    blocker = tmp_path / "blocker"
+    blocker.write_bytes(b"a file where a folder is needed")
+    report = tmp_path / "out" / "r.json"
+    one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "dis-fast", "--limit", "1", "--model",
+                        "reference", "--json", report, "--markdown", blocker / "r.md", "-q"), blocker / "r.md")
+    assert not report.exists()  # both outputs or neither

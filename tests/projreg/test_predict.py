@@ -108,7 +108,10 @@ def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeyp
     one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m),
                     lonely)  # fmt: skip
     one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
-    assert not out.exists()
+    blocker = tmp_path / "blocker"
+    blocker.write_bytes(b"a file where the --viz folder would be")
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", blocker / "v.png", *m), blocker)
+    assert not out.exists()  # the flow and its picture, or neither
     monkeypatch.setattr(projreg.predict, "reference_checkpoint", lambda: None)
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
                     "--model")  # fmt: skip

@@ -93,6 +93,7 @@ def test_refuses_existing_run_without_resume_and_resume_without_run(tiny_train, 
 def test_missing_dataset_is_one_clear_error(tmp_path):
     with pytest.raises(ProjregError, match="nowhere"):
         train(_cfg(tmp_path / "nowhere", tmp_path / "r", steps=2))
+    assert not (tmp_path / "r").exists()  # nothing written before the data is known to be readable
 
 
 def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):

@@ -323,3 +323,14 @@ def test_flow_to_color_bad_input_raises():
 
 def test_docstring_examples():
     assert doctest.testmod(flowio).failed == 0
+
+
+def test_write_atomic_all_writes_every_file_or_none(tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_bytes(b"a file where a folder is needed")
+    good, bad = tmp_path / "sub" / "a.json", blocker / "b.md"
+    with pytest.raises(ProjsynthError, match=rf"^{bad}: cannot write"):
+        flowio.write_atomic_all([(good, b"first"), (bad, b"second")])
+    assert not good.exists() and [p.name for p in (tmp_path / "sub").iterdir()] == []  # no temporary left
+    flowio.write_atomic_all([(good, b"first"), (tmp_path / "c.md", b"second")])
+    assert good.read_bytes() == b"first" and (tmp_path / "c.md").read_bytes() == b"second"
