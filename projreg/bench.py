@@ -321,6 +321,6 @@ def write_outputs(report: dict, *, json_path: Path | None, markdown_path: Path |
     if markdown_path:
         files.append((Path(markdown_path), to_markdown(report).encode()))
     try:
-        write_atomic_all(files)
+        write_atomic_all(files, make_parents=True)
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e

@@ -189,7 +189,7 @@ def predict(
         if job.viz is not None:
             files.append((job.viz, _png(job.viz, flow_to_color(flow))))
         try:
-            write_atomic_all(files)  # the flow and its picture, or neither
+            write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e
         if progress:

@@ -156,9 +156,10 @@ def write_atomic(path: Path, data: bytes) -> None:
     write_atomic_all([(path, data)])
 
 
-def write_atomic_all(files: list[tuple[Path, bytes]]) -> None:
+def write_atomic_all(files: list[tuple[Path, bytes]], make_parents: bool = False) -> None:
     """Write several files all or nothing: every one to a temporary name (fsync) first, then rename
     them; if any cannot be written, the temporaries are removed and no destination is touched.
+    ``make_parents`` creates missing folders (otherwise a missing folder is an error).
 
     Raises:
         ProjsynthError: naming the file that could not be written (or created as a folder).
@@ -169,7 +170,8 @@ def write_atomic_all(files: list[tuple[Path, bytes]]) -> None:
             path = Path(path)
             tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
             try:
-                path.parent.mkdir(parents=True, exist_ok=True)
+                if make_parents:
+                    path.parent.mkdir(parents=True, exist_ok=True)
                 with open(tmp, "xb") as f:
                     staged.append((tmp, path))
                     f.write(data)
