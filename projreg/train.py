@@ -262,7 +262,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
                             ("weight_decay", "weight decay"), ("grad_clip", "gradient clipping"),
                             ("amp", "--amp")):  # fmt: skip
             if _plain(old.get(key), key) != _plain(getattr(cfg, key), key):
-                raise ProjregError(f"--resume: {last_path} was trained with {option} {old[key]}, not "
+                raise ProjregError(f"--resume: {last_path} was trained with {option} {old.get(key)}, not "
                                    f"{getattr(cfg, key)}; resume with the same value")  # fmt: skip
         if int(ck["step"]) > cfg.steps:
             raise ProjregError(f"--resume: {last_path} is already at step {ck['step']} > --steps {cfg.steps}")

@@ -75,7 +75,8 @@ def _check_manifest(m: dict) -> list[str]:
     out = []
     if "num_shards" in m and m["num_shards"] != len(shards):
         out.append(f"lists {len(shards)} shards, num_shards says {m['num_shards']}")
-    expected_total = m["pairs"] * 2 * len(m["transforms"]) if {"pairs", "transforms"} <= m.keys() else None
+    pairs, transforms = m.get("pairs"), m.get("transforms")
+    expected_total = pairs * 2 * len(transforms) if isinstance(pairs, int) and isinstance(transforms, list) else None
     first = 0
     for j, e in enumerate(shards):
         count = e.get("count") if isinstance(e, dict) else None
