@@ -19,7 +19,7 @@ from projsynth.flowio import read_flow_exr
 from projsynth.sources import load_image
 
 from . import ProjregError
-from .predict import _write_png
+from .predict import _write_png, require_suffix
 
 
 def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: int = 0) -> np.ndarray:
@@ -49,6 +49,7 @@ def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: i
 
 def compensate_files(content: Path, flow: Path, out: Path, fill: int = 0) -> None:
     """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG)."""
+    require_suffix(Path(out), ".png", "--out")
     try:
         image = load_image(Path(content))
         f, valid, _ = read_flow_exr(Path(flow))

@@ -102,6 +102,13 @@ class Job:
     sample_id: str
 
 
+def require_suffix(path: Path, suffix: str, option: str) -> None:
+    """Refuse an output name whose extension promises another format than the one written."""
+    if path.suffix.lower() != suffix:
+        raise ProjregError(f"{option} {path}: this file is written as {suffix[1:].upper()}; "
+                           f"give a name ending in {suffix}")  # fmt: skip
+
+
 def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
     """File mode (two files) or folder mode (two folders, pairs by identical relative names).
 
@@ -113,6 +120,9 @@ def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> l
         if captured.is_dir():
             raise ProjregError(f"--projected {projected} is a file but --captured {captured} is a folder; "
                                "give two files or two folders")  # fmt: skip
+        require_suffix(out, ".exr", "--out")
+        if viz is not None:
+            require_suffix(Path(viz), ".png", "--viz")
         return [Job(projected, captured, out, viz, projected.name)]
     if not captured.is_dir():
         raise ProjregError(f"--projected {projected} is a folder but --captured {captured} is not; "

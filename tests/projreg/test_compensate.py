@@ -57,3 +57,7 @@ def test_cli_writes_the_projector_image(tmp_path):
     bad = CliRunner().invoke(app, ["compensate", "--content", str(tmp_path / "nope.png"), "--flow",
                                    str(tmp_path / "f.exr"), "--out", str(tmp_path / "p.png")])
     assert bad.exit_code == 2 and "nope.png" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    jpg = CliRunner().invoke(app, ["compensate", "--content", str(tmp_path / "c.png"), "--flow",
+                                   str(tmp_path / "f.exr"), "--out", str(tmp_path / "p.jpg")])  # fmt: skip
+    assert jpg.exit_code == 2 and "--out" in jpg.stderr and "ending in .png" in jpg.stderr
+    assert not (tmp_path / "p.jpg").exists()

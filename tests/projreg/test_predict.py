@@ -108,6 +108,9 @@ def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeyp
     one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m),
                     lonely)  # fmt: skip
     one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", tmp_path / "f.png", *m), "--out", "ending in .exr")
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", tmp_path / "v.exr", *m), "--viz",
+                   "ending in .png")  # fmt: skip
     blocker = tmp_path / "blocker"
     blocker.write_bytes(b"a file where the --viz folder would be")
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", blocker / "v.png", *m), blocker)
