@@ -19,7 +19,7 @@ from projsynth.flowio import read_flow_exr
 from projsynth.sources import load_image
 
 from . import ProjregError
-from .predict import _write_png, require_suffix
+from .predict import require_suffix, write_png
 
 
 def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: int = 0) -> np.ndarray:
@@ -57,4 +57,4 @@ def compensate_files(content: Path, flow: Path, out: Path, fill: int = 0) -> Non
         raise ProjregError(str(e)) from e
     if not 0 <= fill <= 255:
         raise ProjregError(f"--fill: must be in 0..255, got {fill}")
-    _write_png(Path(out), compensate(image, f, valid, fill))
+    write_png(Path(out), compensate(image, f, valid, fill))

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from projsynth import ProjsynthError, flowio
+from projsynth.export import png_bytes
 from projsynth.flowio import encode_flow_exr, flow_to_color, write_atomic_all
 from projsynth.sources import list_images, load_image
 
@@ -195,10 +196,10 @@ def predict(
         flow = predict_resized(net, img0, img1, device, max_side)
         if refiner is not None:
             flow = refiner.refine(img0, img1, flow)[0]
-        files = [(job.out, encode_flow_exr(flow, np.ones(flow.shape[:2], bool), job.sample_id))]
-        if job.viz is not None:
-            files.append((job.viz, _png(job.viz, flow_to_color(flow))))
         try:
+            files = [(job.out, encode_flow_exr(flow, np.ones(flow.shape[:2], bool), job.sample_id))]
+            if job.viz is not None:
+                files.append((job.viz, png_bytes(job.viz, flow_to_color(flow))))
             write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e
@@ -214,20 +215,9 @@ def _load(path: Path) -> np.ndarray:
         raise ProjregError(str(e)) from e
 
 
-def _png(path: Path, rgb: np.ndarray) -> bytes:
-    ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise ProjregError(f"{path}: PNG encoding failed")
-    return data.tobytes()
-
-
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    write_atomic(path, _png(path, rgb))
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Atomic write (temporary file, fsync, rename); errors become one ProjregError naming the file."""
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Atomic PNG write (temporary file, fsync, rename); errors become one ProjregError naming the file."""
     try:
-        flowio.write_atomic(Path(path), data)
+        flowio.write_atomic(Path(path), png_bytes(path, image))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e

@@ -13,11 +13,16 @@ from .flowio import flow_to_color, write_atomic, write_flo
 from .shards import ShardReader
 
 
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb)
+def png_bytes(path: Path, image: np.ndarray) -> bytes:
+    """``image`` (``H x W x 3`` RGB or ``H x W`` gray, uint8) encoded as a PNG file destined for ``path``."""
+    ok, data = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image)
     if not ok:
-        raise ProjsynthError(f"{path}: cannot encode PNG of shape {rgb.shape}")
-    write_atomic(path, data.tobytes())
+        raise ProjsynthError(f"{path}: cannot encode PNG of shape {image.shape}")
+    return data.tobytes()
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    write_atomic(path, png_bytes(path, image))
 
 
 def export(root: Path, out: Path, limit: int | None = None, progress: Callable[[int], None] | None = None,
