@@ -49,16 +49,30 @@ def render(
     """Project ``projected`` through ``scene`` onto ``background`` and record the ground truth.
 
     Args:
-        projected: ``(H, W, 3)`` uint8 projector frame buffer.
-        background: ``(H, W, 3)`` uint8 scene as the camera sees it.
-        scene: geometry (its lenses' frames must be ``H x W``).
+        projected: ``(H, W, 3)`` uint8 projector frame buffer (the projector lens's frame).
+        background: ``(Hc, Wc, 3)`` uint8 scene as the camera sees it (the camera lens's frame).
+        scene: geometry.
         photometry: drawn parameters for :func:`~projsynth.photometric.composite`.
         blend: ``"paper"`` or ``"physical"``.
         rng: the sample's generator, used for the transparency field and the noise.
     """
-    h, w = projected.shape[:2]
-    grid = pixel_grid(h, w)
-    fm = forward(scene, grid)
+    flow, valid, reason = ground_truth(scene)
+    alpha = alpha_field(projected.shape[:2], photometry["alpha"], photometry["alpha_var"], rng)
+    view = camera_view(scene)
+    captured = photograph(projected, alpha, view, background, photometry, blend, rng)
+    return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, view[1]))
+
+
+def ground_truth(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The exact flow of every projector pixel of ``scene``.
+
+    Returns:
+        ``(flow, valid, reason)``: ``(H, W, 2)`` float32 in camera pixels (0 where not valid),
+        ``(H, W)`` bool and ``(H, W)`` uint8 bit flags of ``scene.REASONS`` (0 where valid), on the
+        projector's ``H x W`` grid.
+    """
+    h, w = scene.projector.height, scene.projector.width
+    fm = forward(scene, pixel_grid(h, w))
     reason = fm.reason.reshape(h, w).copy()
     edges = ((reason & (OCCLUDED | MISS)) > 0).astype(np.uint8)
     if edges.any():
@@ -66,13 +80,33 @@ def render(
         near = cv2.dilate(edges, np.ones((k, k), np.uint8)) > 0
         reason[near & (reason == 0)] = NEAR_EDGE
     valid = reason == 0
-    flow = _flow(fm.uv, valid.ravel(), h, w)
+    return _flow(fm.uv, valid.ravel(), h, w), valid, reason
 
-    alpha = alpha_field((h, w), photometry["alpha"], photometry["alpha_var"], rng)
+
+def camera_view(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The backward map of every camera pixel, ``(xy, lit)`` as :func:`~projsynth.scene.backward` returns it."""
+    return backward(scene, pixel_grid(scene.camera.height, scene.camera.width))
+
+
+def photograph(
+    projected: np.ndarray,
+    alpha: np.ndarray,
+    view: tuple[np.ndarray, np.ndarray],
+    background: np.ndarray,
+    photometry: dict[str, float],
+    blend: str,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The camera's photo of ``projected`` (transparency ``alpha``, ``(H, W)`` in [0, 1]) lighting the
+    scene whose camera view is ``view`` (:func:`camera_view`); ``rng`` draws the sensor noise only.
+
+    Returns:
+        ``(Hc, Wc, 3)`` uint8, the size of ``background``.
+    """
+    if projected.ndim == 2:
+        projected = np.repeat(projected[..., None], 3, axis=2)
     rgba = _with_alpha(np.ascontiguousarray(projected), alpha)
-    xy, lit = backward(scene, grid)
-    captured = composite(blend, rgba, xy, lit, background, photometry, rng)
-    return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, lit))
+    return composite(blend, rgba, view[0], view[1], background, photometry, rng)
 
 
 @jit

@@ -18,8 +18,20 @@ from .transforms import draw
 REFERENCE_WIDTH = 512
 
 
-def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[int, int]) -> tuple[Scene, dict]:
+def make_scene(
+    family: str,
+    ranges: dict,
+    rng: np.random.Generator,
+    size: tuple[int, int],
+    camera_size: tuple[int, int] | None = None,
+) -> tuple[Scene, dict]:
     """Draw a scene of ``family`` inside ``ranges`` with ``rng``.
+
+    Args:
+        size: the projector's frame ``(H, W)``.
+        camera_size: the camera's frame ``(H, W)``; None: the projector's. The camera keeps its field
+            of view: its focal length, principal point and aim offset scale with ``W_cam / W``, so a
+            larger frame sees the same view with more pixels (the draws do not depend on it).
 
     Returns:
         ``(scene, params)``: the scene and every drawn value (ranges' draws plus the directions,
@@ -50,13 +62,16 @@ def make_scene(family: str, ranges: dict, rng: np.random.Generator, size: tuple[
         proj_dist = (-s * g["proj_k1"], 0.0, 0.0, 0.0, 0.0)
         extra["tangential_angle"] = float(p_ang)
     projector = Lens(f, f, cx + jx, cy + jy, tuple(map(float, proj_dist)), width, height)
-    fc = f * g["fov_ratio"]
-    camera = Lens(fc, fc, cx - jx, cy - jy, tuple(map(float, cam_dist)), width, height)
+    cam_h, cam_w = camera_size or size
+    k = cam_w / width  # camera pixels per projector pixel of the same view
+    fc = f * g["fov_ratio"] * k
+    camera = Lens(fc, fc, (cam_w - 1) / 2 - jx * k, (cam_h - 1) / 2 - jy * k, tuple(map(float, cam_dist)), cam_w, cam_h)
 
     target = np.array([0.0, 0.0, 1.0])
     b_axis = np.array([np.cos(extra["baseline_azimuth"]), np.sin(extra["baseline_azimuth"]), 0.0])
     C = target + g["distance_ratio"] * (rotation_about(b_axis, np.radians(g["baseline_deg"])) @ -target)
-    aim = (g["aim_px"] * px * np.cos(extra["aim_azimuth"]), g["aim_px"] * px * np.sin(extra["aim_azimuth"]))
+    aim_px = g["aim_px"] * px * k
+    aim = (aim_px * np.cos(extra["aim_azimuth"]), aim_px * np.sin(extra["aim_azimuth"]))
     R = look_at(C, target, aim, extra["roll_sign"] * np.radians(g["roll_deg"]), camera)
 
     t_axis = np.array([np.cos(extra["tilt_azimuth"]), np.sin(extra["tilt_azimuth"]), 0.0])
