@@ -80,6 +80,39 @@ def load_image(path: Path) -> np.ndarray:
     Raises:
         ProjsynthError: the file is missing, empty, truncated, not an image or of an unsupported type.
     """
+    image = read_image(path)
+    if image.dtype == np.uint16:
+        image = ((image.astype(np.uint32) + 128) // 257).astype(np.uint8)  # exact round(v / 257)
+    elif image.dtype.kind == "f":
+        image = (np.clip(np.nan_to_num(image, nan=0.0), 0, 1) * 255 + 0.5).astype(np.uint8)
+    channels = image.shape[2]
+    if channels in (1, 2):  # gray, gray + alpha
+        return np.repeat(image[..., :1], 3, axis=2)
+    return cv2.cvtColor(image[..., :3], cv2.COLOR_BGR2RGB)  # BGR, BGRA
+
+
+def load_gray(path: Path) -> np.ndarray:
+    """Read an image file as ``H x W`` float32 grey in [0, 1] at its full bit depth (photos to decode).
+
+    8-bit divided by 255, 16-bit by 65535, float clipped to [0, 1] (NaN -> 0); colour is the mean of
+    the three channels; alpha is dropped. Errors as :func:`load_image`.
+    """
+    image = read_image(path)
+    if image.dtype == np.uint8:
+        gray = image[..., :3].astype(np.float32) / np.float32(255)
+    elif image.dtype == np.uint16:
+        gray = image[..., :3].astype(np.float32) / np.float32(65535)
+    else:
+        gray = np.clip(np.nan_to_num(image[..., :3].astype(np.float32), nan=0.0), 0, 1)
+    return gray[..., 0] if image.shape[2] < 3 else gray.mean(axis=2, dtype=np.float32)
+
+
+def read_image(path: Path) -> np.ndarray:
+    """An image file decoded by OpenCV as ``H x W x C`` (C 1-4, BGR order), uint8, uint16 or float.
+
+    Raises:
+        ProjsynthError: the file is missing, empty, truncated, not an image or of an unsupported type.
+    """
     try:
         data = np.fromfile(path, np.uint8)
     except OSError as err:
@@ -93,21 +126,14 @@ def load_image(path: Path) -> np.ndarray:
         raise ProjsynthError(f"{path}: cannot read image (decoder error); remove it or fix it") from err
     if image is None or image.size == 0:
         raise ProjsynthError(f"{path}: cannot read image (not a complete image file); remove it or fix it")
-    if image.dtype == np.uint16:
-        image = ((image.astype(np.uint32) + 128) // 257).astype(np.uint8)  # exact round(v / 257)
-    elif image.dtype.kind == "f":
-        image = (np.clip(np.nan_to_num(image, nan=0.0), 0, 1) * 255 + 0.5).astype(np.uint8)
-    elif image.dtype != np.uint8:
+    if image.dtype not in (np.uint8, np.uint16) and image.dtype.kind != "f":
         raise ProjsynthError(f"{path}: cannot read image (unsupported sample type {image.dtype}); "
                              "convert it to 8/16-bit or float")
     if image.ndim == 2:
         image = image[..., None]
-    channels = image.shape[2]
-    if channels in (1, 2):  # gray, gray + alpha
-        return np.repeat(image[..., :1], 3, axis=2)
-    if channels in (3, 4):  # BGR, BGRA
-        return cv2.cvtColor(image[..., :3], cv2.COLOR_BGR2RGB)
-    raise ProjsynthError(f"{path}: cannot read image ({channels} channels); remove it or fix it")
+    if image.shape[2] > 4:
+        raise ProjsynthError(f"{path}: cannot read image ({image.shape[2]} channels); remove it or fix it")
+    return image
 
 
 def fit_to_size(image: np.ndarray, size: tuple[int, int], name: str = "image") -> np.ndarray:
