@@ -6,17 +6,21 @@ import json
 import sys
 from functools import partial
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import cv2
 import typer
 from tqdm import tqdm
+from typer.core import TyperCommand
 
 from . import ProjsynthError
+from .capture import capture as capture_scene
 from .dataset import parse_size, resolve_plan
+from .decode import decode_folder
 from .export import export as export_samples
 from .export import preview as preview_sheet
 from .generate import generate, merge
+from .structured import make_set, parse_grid, read_patterns, write_patterns
 from .transforms import load_table, table_to_toml
 from .verify import inspect as inspect_dataset
 from .verify import verify as verify_dataset
@@ -183,6 +187,76 @@ def transforms_cmd(
         for c in tab.configs:
             g = ", ".join(f"{k}={a:g}..{b:g}" for k, (a, b) in c.geometry.items() if k not in ("fov_deg",))
             typer.echo(f"{c.id:4d} {c.name:30s} {g}")
+
+
+@app.command()
+def patterns(
+    kind: Annotated[str, typer.Option(help="graycode (dense, sub-pixel) or dots (the paper's 11-image protocol).")],
+    size: Annotated[str, typer.Option(help="Projector frame HxW.")],
+    out: Annotated[Path, typer.Option(help="Folder for the PNGs (NN-<name>.png) and patterns.json.")],
+    grid: Annotated[str, typer.Option(help="dots: dot grid ROWSxCOLS.")] = "20x20",
+    period: Annotated[int, typer.Option(help="graycode: fringe period in projector px (multiple of 4).")] = 16,
+    shifts: Annotated[int, typer.Option(help="graycode: phase shifts per axis.")] = 8,
+) -> None:
+    """Write a structured-light pattern set to project, in order (docs/real-rig.md)."""
+    try:
+        files = write_patterns(make_set(kind, parse_size(size), parse_grid(grid), period, shifts), out)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    typer.echo(f"{out}: {len(files) - 1} patterns and patterns.json", err=True)
+
+
+@app.command()
+def capture(
+    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.")],
+    out: Annotated[Path, typer.Option(help="Folder for the photos, truth.exr and capture.json.")],
+    transform: Annotated[int, typer.Option(help="Transform id of the scene (see `projsynth transforms`).")],
+    seed: Annotated[int, typer.Option(help="Seed of the scene, photometry and noise.")] = 0,
+    camera_size: Annotated[str | None, typer.Option(help="Camera frame HxW (default: the projector's).")] = None,
+    content: Annotated[list[Path] | None, typer.Option(help="Picture to photograph too (repeatable).")] = None,
+    background: Annotated[Path | None, typer.Option(help="Surface as the camera sees it (default: built-in).")] = None,
+    blend: Annotated[str, typer.Option(help="Photometric model: physical (gamma, response) or paper.")] = "physical",
+    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
+) -> None:
+    """Virtual rig: photograph the patterns (and pictures) through one simulated scene, with exact truth."""
+    try:
+        cam = None if camera_size is None else parse_size(camera_size, "--camera-size")
+        scene = {"table": load_table(table), "transform": transform, "seed": seed, "camera_size": cam}
+        pictures = {"contents": content or [], "background": background, "blend": blend}
+        record = capture_scene(read_patterns(patterns_dir), out, **scene, **pictures)
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    photos, pictures = len(record["patterns"]["order"]), len(record["contents"])
+    share = record["valid_share"]
+    typer.echo(f"{out}: {photos} photos, {pictures} pictures, truth.exr ({share:.1%} of projector px valid)", err=True)
+
+
+PAIR_HELP = "A picture and its photo from the same rig pose (repeatable): OUT becomes a dataset of them."
+
+
+class _PairCommand(TyperCommand):
+    """``--pair PROJECTED CAPTURED``, repeatable: two values per occurrence (Typer has no list of tuples)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for param in self.params:
+            if param.name == "pair":
+                param.nargs, param.multiple = 2, True
+
+
+@app.command(cls=_PairCommand)
+def decode(
+    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.")],
+    captures: Annotated[Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).")],
+    out: Annotated[Path, typer.Option(help="Folder for correspondence.exr (and the dataset with --pair).")],
+    pair: Annotated[list[Any] | None, typer.Option(metavar="PROJECTED CAPTURED", help=PAIR_HELP)] = None,
+) -> None:
+    """Decode pattern photos into the projector -> camera correspondence (and a dataset of pairs)."""
+    try:
+        summary = decode_folder(patterns_dir, captures, out, [(Path(a), Path(b)) for a, b in pair or []])
+    except ProjsynthError as e:
+        raise _fail(e) from None
+    typer.echo(f"{out}: {summary}", err=True)
 
 
 def run_console(application: typer.Typer, prog: str) -> None:

@@ -73,14 +73,14 @@ class Plan:
         return hashlib.sha256(json.dumps(self.describe(), sort_keys=True).encode()).hexdigest()
 
 
-def parse_size(text: str) -> tuple[int, int]:
+def parse_size(text: str, option: str = "--size") -> tuple[int, int]:
     """``"384x512"`` -> ``(384, 512)`` (height x width), both in ``[32, 4096]``."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise ProjsynthError(f"--size: expected HxW such as 384x512, got {text!r}") from None
+        raise ProjsynthError(f"{option}: expected HxW such as 384x512, got {text!r}") from None
     if not (MIN_SIZE <= h <= MAX_SIZE and MIN_SIZE <= w <= MAX_SIZE):
-        raise ProjsynthError(f"--size: {h}x{w} is outside {MIN_SIZE}..{MAX_SIZE} per side")
+        raise ProjsynthError(f"{option}: {h}x{w} is outside {MIN_SIZE}..{MAX_SIZE} per side")
     return h, w
 
 

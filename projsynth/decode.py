@@ -23,16 +23,19 @@ ground truth: projector pixel ``(x, y)`` is seen at camera pixel ``(x + u, y + v
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import ProjsynthError
+from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
+from .flowio import encode_flow_exr, write_atomic_all
 from .invert import invert_map
 from .sources import IMAGE_EXTENSIONS, load_gray
-from .structured import PatternSet
+from .structured import PatternSet, read_patterns
 
 SATURATED = 0.995  # of full scale: a fringe photo at or above this at a pixel rejects the pixel
 MIN_CONTRAST = 0.02  # white - black, of full scale
@@ -97,6 +100,50 @@ def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[
             )
         images.append(img)
     return np.stack(images), files
+
+
+CORRESPONDENCE_FILE, DECODE_FILE = "correspondence.exr", "decode.json"
+
+
+def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tuple[Path, Path]] = ()) -> str:
+    """``projsynth decode``: the photos in ``captures`` of the set in ``patterns_dir`` -> ``out``.
+
+    Writes ``out/correspondence.exr`` (channels ``forward.u``, ``forward.v``, ``valid``, as the shards'
+    flow) and ``out/decode.json`` (what was decoded, how much is valid); with ``pairs``, ``out`` is
+    also a dataset of those pairs with the correspondence as truth (:mod:`projsynth.captured`).
+
+    Returns:
+        A one-line summary for the user.
+    """
+    patterns = read_patterns(patterns_dir)
+    photos, files = load_captures(patterns, captures)
+    result = decode(patterns, photos)
+    camera_size = photos.shape[1:]
+    samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
+    record = {
+        "patterns": str(patterns_dir),
+        "kind": patterns.kind,
+        "projector_size": list(patterns.size),
+        "camera_size": list(camera_size),
+        "photos": [f.name for f in files],
+        **result.stats,
+        "valid_share": float(result.valid.mean()),
+    }
+    write_atomic_all(
+        [
+            (out / CORRESPONDENCE_FILE, encode_flow_exr(result.flow, result.valid, "correspondence")),
+            (out / DECODE_FILE, (json.dumps(record, indent=1) + "\n").encode()),
+        ],
+        make_parents=True,
+    )
+    if samples:
+        write_captured_dataset(out, patterns, patterns_dir, files, samples, camera_size)
+    what = (
+        f"{result.stats['dots_decoded']} of {result.stats['dots']} dots"
+        if patterns.kind == "dots"
+        else (f"{result.valid.mean():.1%} of projector pixels")
+    )
+    return f"{what} decoded into {CORRESPONDENCE_FILE}" + (f"; dataset of {len(samples)} pairs" if samples else "")
 
 
 def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:

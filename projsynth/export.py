@@ -77,7 +77,9 @@ def preview(root: Path, out: Path, count: int = 8) -> int:
         for k in np.linspace(0, len(reader) - 1, min(count, len(reader))).astype(int):
             s = reader.read(int(k))
             gray = np.repeat((s["valid"].astype(np.uint8) * 255)[..., None], 3, axis=2)
-            row = np.hstack([s["projected"], s["captured"], flow_to_color(s["flow"], s["valid"]), gray])
+            h, w = gray.shape[:2]
+            captured = s["captured"] if s["captured"].shape[:2] == (h, w) else cv2.resize(s["captured"], (w, h))
+            row = np.hstack([s["projected"], captured, flow_to_color(s["flow"], s["valid"]), gray])
             label = s["params"]["sample_id"]
             cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 2, cv2.LINE_AA)
             cv2.putText(row, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)

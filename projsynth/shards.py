@@ -57,13 +57,14 @@ def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
     tmp = path.with_name(path.name + ".tmp")
     n = len(samples)
     h, w = samples[0].projected.shape[:2]
+    hc, wc = samples[0].captured.shape[:2]  # the camera's frame may differ from the projector's (captured data)
     try:
         with h5py.File(tmp, "w", libver="v110", track_order=False) as f:
             for key, value in attrs.items():
                 f.attrs[key] = value
             f.attrs["count"] = n
             proj = f.create_dataset("projected", (n, h, w, 3), np.uint8, chunks=(1, h, w, 3), **_IMAGE_OPTS)
-            capt = f.create_dataset("captured", (n, h, w, 3), np.uint8, chunks=(1, h, w, 3), **_IMAGE_OPTS)
+            capt = f.create_dataset("captured", (n, hc, wc, 3), np.uint8, chunks=(1, hc, wc, 3), **_IMAGE_OPTS)
             valid = f.create_dataset("valid", (n, h, w), bool, chunks=(1, h, w), **_IMAGE_OPTS)
             exr = f.create_dataset("flow_exr", (n,), h5py.vlen_dtype(np.uint8), track_times=False)
             shared = None  # (frame, its compressed chunk): the samples of a pair and role share the frame

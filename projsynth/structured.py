@@ -204,6 +204,17 @@ def read_patterns(folder: Path) -> PatternSet:
     return patterns
 
 
+def parse_grid(text: str) -> tuple[int, int]:
+    """``"20x20"`` -> ``(20, 20)`` (rows x columns of dots)."""
+    try:
+        gy, gx = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ProjsynthError(f"--grid: expected ROWSxCOLS such as 20x20, got {text!r}") from None
+    if not (2 <= gy <= 256 and 2 <= gx <= 256):
+        raise ProjsynthError(f"--grid: {gy}x{gx} is outside 2..256 per side")
+    return gy, gx
+
+
 def _bits(n: int) -> int:
     """Bits to number ``n`` things (at least 1)."""
     return max(1, math.ceil(math.log2(n)))

@@ -48,6 +48,7 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
     if problems:
         return problems  # the shard entries cannot be trusted to say which samples each file should hold
     h, w = manifest["size"]
+    camera = tuple(manifest.get("camera_size") or (h, w))  # captured data: the camera's frame
     for entry in manifest["shards"]:
         expected = iter(manifest["samples"][entry["first_sample"] : entry["first_sample"] + entry["count"]])
         path = root / entry["file"]
@@ -59,7 +60,7 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
         if file_sha256(path) != entry["sha256"]:
             problems.append(f"{path}: sha256 differs from the manifest (corrupt or modified); regenerate it")
         try:
-            problems += [f"{path}: {p}" for p in _check_shard(path, manifest, entry, expected, h, w)]
+            problems += [f"{path}: {p}" for p in _check_shard(path, manifest, entry, expected, (h, w), camera)]
         except (OSError, KeyError, ValueError, ProjsynthError) as e:
             problems.append(f"{path}: unreadable ({e}); regenerate it")
         if progress:
@@ -93,7 +94,10 @@ def _check_manifest(m: dict) -> list[str]:
     return out
 
 
-def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h: int, w: int) -> list[str]:
+def _check_shard(
+    path: Path, manifest: dict, entry: dict, expected: Iterator, size: tuple[int, int], camera: tuple[int, int]
+) -> list[str]:
+    (h, w), (hc, wc) = size, camera
     out = []
     with open_shard(path) as f:
         n = entry["count"]
@@ -104,7 +108,7 @@ def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h:
                 or a.get("generator") != manifest.get("generator")):  # fmt: skip
             out.append("attributes do not match the manifest (config hash, shard index, first sample, count, "
                        "format version or generator)")  # fmt: skip
-        for name, shape in (("projected", (n, h, w, 3)), ("captured", (n, h, w, 3)), ("valid", (n, h, w))):
+        for name, shape in (("projected", (n, h, w, 3)), ("captured", (n, hc, wc, 3)), ("valid", (n, h, w))):
             if f[name].shape != shape:
                 out.append(f"dataset {name} has shape {f[name].shape}, expected {shape}")
         if out:
@@ -123,10 +127,13 @@ def _check_shard(path: Path, manifest: dict, entry: dict, expected: Iterator, h:
             out.append(f"sample {i} ({s.id}): non-zero flow at invalid pixels")
         u, v = xs + s.flow[..., 0], ys + s.flow[..., 1]
         e = 1e-3  # float32 storage of the flow
-        inside = (u >= -e) & (u <= w - 1 + e) & (v >= -e) & (v <= h - 1 + e)
+        inside = (u >= -e) & (u <= wc - 1 + e) & (v >= -e) & (v <= hc - 1 + e)
         if np.any(s.valid & ~inside):
             out.append(f"sample {i} ({s.id}): valid pixels whose flow leaves the camera frame")
     return out
+
+
+_CONFIG_KEYS = ("size", "camera_size", "seed", "split", "pairs", "blend", "table_version")
 
 
 def inspect(root: Path) -> dict:
@@ -156,7 +163,7 @@ def inspect(root: Path) -> dict:
         reader.close()
     return {
         "dataset": str(root),
-        "config": {k: manifest[k] for k in ("size", "seed", "split", "pairs", "blend", "table_version")},
+        "config": {k: manifest[k] for k in _CONFIG_KEYS if k in manifest},
         "total": _summary(total),
         "families": {k: _summary(v) for k, v in sorted(families.items())},
         "histogram_edges_px": [e if np.isfinite(e) else None for e in edges],
