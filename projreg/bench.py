@@ -1,6 +1,7 @@
 """``projreg bench``: models and classical baselines on the same shards, in one run, one report.
 
-Every method sees every evaluated sample, ``predict(projected, captured) -> flow``; metrics are the
+Every method sees every evaluated sample, ``predict(projected, captured) -> flow`` (a captured image
+of another size is resized to the projected one and the flow scaled back, :mod:`projreg.frames`); metrics are the
 pooled ones of :class:`~projreg.metrics.EPEAccumulator` (EPE, buckets, outlier rates, per-image mean),
 overall and per group of samples:
 
@@ -38,6 +39,7 @@ from projsynth.shards import ShardReader
 from . import ProjregError
 from .baselines import make_baseline
 from .evaluate import predict_flow, sample_indices
+from .frames import register_any_size
 from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
 from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint
 from .refine import GeometricRefiner
@@ -210,13 +212,13 @@ def run_bench(
         scores = [_Scores() for _ in methods]
         first = _read(reader, indices[0])
         for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
-            m.predict(first["projected"], first["captured"])
+            register_any_size(m.predict, first["projected"], first["captured"])
         for done, k in enumerate(indices, start=1):
             s = first if done == 1 else _read(reader, k)
             groups = sample_groups(s["params"])
             for m, sc in zip(methods, scores, strict=True):
                 t0 = time.perf_counter()
-                pred = m.predict(s["projected"], s["captured"])
+                pred = register_any_size(m.predict, s["projected"], s["captured"])
                 sc.ms.append(1000 * (time.perf_counter() - t0))
                 sc.add(pred, s["flow"], s["valid"], groups)
             if progress:
@@ -225,7 +227,8 @@ def run_bench(
         reader.close()
     man = reader.manifest
     dataset = {"path": str(data), "num_samples": len(reader), "evaluated": len(indices), "size": man.get("size"),
-               "seed": man.get("seed"), "split": man.get("split"), "config_hash": man.get("config_hash")}  # fmt: skip
+               "camera_size": man.get("camera_size", man.get("size")), "seed": man.get("seed"),
+               "split": man.get("split"), "config_hash": man.get("config_hash")}  # fmt: skip
     return {"dataset": dataset, "reference_model": None if reference is None else str(reference),
             "results": [sc.result(m) for m, sc in zip(methods, scores, strict=True)]}  # fmt: skip
 

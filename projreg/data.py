@@ -5,6 +5,9 @@ Determinism: the sample order and every augmentation draw are a pure function of
 number of loader workers, and a run resumed at step ``s`` sees exactly the samples it would have seen.
 HDF5 files are opened lazily inside each worker (``projsynth.shards.ShardReader`` reopens after fork).
 
+A captured image of another size than the projected one (captured data) is resized to it and its
+truth converted (:mod:`projreg.frames`), so batches hold one size.
+
 Convention: ``img0`` = projected, ``img1`` = captured, ``[3, H, W]`` float32 in [0, 255];
 ``flow`` ``[2, H, W]`` float32 projected -> captured; ``valid`` ``[H, W]`` bool.
 """
@@ -24,6 +27,7 @@ from projsynth import ProjsynthError
 from projsynth.shards import ShardReader
 
 from . import ProjregError
+from .frames import frame_scale, resize_to, truth_to_projected_frame
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,9 @@ class ShardDataset(Dataset):
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e
         img0, img1, flow, valid = s["projected"], s["captured"], s["flow"], s["valid"]
+        if img1.shape != img0.shape:  # captured data: the network sees the camera frame at the projector's size
+            flow, valid = truth_to_projected_frame(flow, valid, frame_scale(img0.shape, img1.shape))
+            img1 = resize_to(img1, img0.shape)
         if self.augment is not None:
             rng = np.random.default_rng(aug_seed)
             img0, img1, flow, valid = augment_sample(img0, img1, flow, valid, self.augment, rng)

@@ -4,6 +4,9 @@ Each pair gives the forward flow, projected -> captured, written as the shards' 
 ``forward.u``, ``forward.v``, ``valid``; ``valid`` is all true here: the model has no notion of
 invalid pixels) and, optionally, a colour-wheel PNG.
 
+The captured image may have another size than the projected one (a camera is not a projector): it
+is resized for the network and the flow is given in its own pixels (:mod:`projreg.frames`).
+
 Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the projected grid,
 ``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
 """
@@ -26,6 +29,7 @@ from projsynth.sources import list_images, load_image
 
 from . import ProjregError
 from .evaluate import predict_flow
+from .frames import register_any_size
 from .model.net import SSJMFlow
 from .refine import GeometricRefiner
 from .train import load_checkpoint, model_from_checkpoint, require_model
@@ -188,14 +192,14 @@ def predict(
     device = device or default_device()
     net = load_model(resolve_checkpoint(model), device)
     refiner = GeometricRefiner() if refine else None
+
+    def register(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+        flow = predict_resized(net, img0, img1, device, max_side)
+        return flow if refiner is None else refiner.refine(img0, img1, flow)[0]
+
     for k, job in enumerate(jobs):
         img0, img1 = _load(job.projected), _load(job.captured)
-        if img0.shape != img1.shape:
-            raise ProjregError(f"{job.projected} is {img0.shape[1]}x{img0.shape[0]} but {job.captured} is "
-                               f"{img1.shape[1]}x{img1.shape[0]} (WxH); a pair must have one size")  # fmt: skip
-        flow = predict_resized(net, img0, img1, device, max_side)
-        if refiner is not None:
-            flow = refiner.refine(img0, img1, flow)[0]
+        flow = register_any_size(register, img0, img1)
         try:
             files = [(job.out, encode_flow_exr(flow, np.ones(flow.shape[:2], bool), job.sample_id))]
             if job.viz is not None:

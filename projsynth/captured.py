@@ -118,6 +118,10 @@ def write_captured_dataset(
     info["config_hash"] = hashlib.sha256(json.dumps(info, sort_keys=True).encode()).hexdigest()
     info.update(shard_size=len(samples), num_shards=1, skipped_sources=[])
     plan_path = Path(out) / PLAN_FILE
+    try:
+        Path(out).mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ProjsynthError(f"--out {out}: cannot create directory ({e.strerror}); choose a writable path") from e
     if plan_path.exists():
         old = json.loads(plan_path.read_text())
         if old.get("config_hash") != info["config_hash"]:
