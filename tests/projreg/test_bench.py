@@ -60,7 +60,8 @@ def test_report_schema(report, tiny_train):
     assert set(report) == {"dataset", "reference_model", "results"}
     manifest = json.loads((tiny_train / "manifest.json").read_text())
     assert report["dataset"] == {"path": str(tiny_train), "num_samples": 16, "evaluated": 16, "size": [64, 96],
-                                 "seed": 0, "split": "train", "config_hash": manifest["config_hash"]}  # fmt: skip
+                                 "camera_size": [64, 96], "seed": 0, "split": "train",
+                                 "config_hash": manifest["config_hash"]}  # fmt: skip
     assert report["reference_model"] is None
     assert [(r["name"], r["kind"]) for r in report["results"]] == [
         ("last", "model"), ("dis-medium", "baseline"), ("zero", "baseline"), ("shifted", "baseline")]  # fmt: skip
