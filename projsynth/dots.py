@@ -10,8 +10,10 @@ interior's albedo does not pull the centre, only the edge ramp locates it. Its i
 
 A dot is either right or absent. Dropped: a blob touching the frame border (truncated), a bit whose
 ratio lies between 0.25 and 0.75, an index outside the grid or found twice, an area far from the
-other dots', and a dot that no grid neighbour confirms (a decoded neighbour whose camera distance
-matches the grid spacing at the median camera scale): a wrong index lands far from its neighbours.
+other dots', a dot that no grid neighbour confirms (a decoded neighbour whose camera distance
+matches the grid spacing at the median camera scale: a wrong index lands far from its neighbours),
+and a dot at the decoded region's edge whose area is less than a whole dot's at the local scale of
+its neighbours (cut by a silhouette or an occluding edge, its centroid would be its visible part's).
 
 Convention: the result is a flow on the projector grid, valid only at decoded dot centres.
 """
@@ -46,7 +48,10 @@ def decode_dots(patterns: PatternSet, stack: dict[str, np.ndarray]) -> tuple[np.
     counts = np.bincount(index[keep], minlength=len(centres))
     keep &= counts[np.minimum(index, len(centres) - 1)] == 1  # an index seen twice: neither is trusted
     found = {int(index[k]): (cx[k], cy[k]) for k in np.nonzero(keep)[0]}
-    found = _confirmed(found, centres, patterns.params["grid"][1])
+    area = {int(index[k]): total[k] for k in np.nonzero(keep)[0]}
+    gx = patterns.params["grid"][1]
+    found = _confirmed(found, centres, gx)
+    found = _whole(found, area, centres, gx, _disc_pixels(patterns.params["radius"]))
     flow, valid = np.zeros((h, w, 2), np.float32), np.zeros((h, w), bool)
     for i, (x, y) in found.items():
         X, Y = centres[i]
@@ -98,6 +103,51 @@ def _touches_border(labels: np.ndarray, n: int) -> np.ndarray:
     touching = np.zeros(n, bool)
     touching[np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))] = True
     return touching
+
+
+def _disc_pixels(radius: float) -> int:
+    r = int(np.ceil(radius))
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    return int(np.count_nonzero(dx * dx + dy * dy <= radius * radius))
+
+
+def _whole(found: dict, area: dict, centres: np.ndarray, gx: int, disc: int) -> dict:
+    """Drop the dots at the decoded region's edge (a grid neighbour missing) whose blob is smaller than a
+    whole dot there: ``disc`` projector pixels times the local area scale ``|det J|`` of the projector
+    -> camera map (``J`` from the decoded grid neighbours), relative to the median over all dots.
+
+    A dot cut by a silhouette, an occluding edge or a shadow keeps the centroid of its visible part
+    (off by up to its radius) and usually all of its bits; such cuts happen where neighbours are
+    missing. Kept there: 0.88x to 1.25x of the median (whole dots spread about +-10%: a dot cut at a
+    cylinder's silhouette measured 0.86x). Dots without two decoded neighbours across are dropped.
+    """
+    ratio = {}
+    for i, xy in found.items():
+        columns = []
+        for step in (1, gx):  # along the grid's x, then its y
+            diffs = [
+                (np.subtract(found[j], xy) * np.sign(j - i)) / np.hypot(*(centres[j] - centres[i]))
+                for j in (i - step, i + step)
+                if j in found and (step == gx or j // gx == i // gx)
+            ]
+            columns.append(np.mean(diffs, axis=0) if diffs else None)
+        if columns[0] is not None and columns[1] is not None:
+            ratio[i] = area[i] / (disc * abs(columns[0][0] * columns[1][1] - columns[0][1] * columns[1][0]))
+    if not ratio:
+        return {}
+    typical = float(np.median(list(ratio.values())))
+    kept = {}
+    for i, r in ratio.items():
+        inner = all(j in found for j in _grid_neighbours(i, gx, len(centres)))
+        if inner or 0.88 <= r / typical <= 1.25:
+            kept[i] = found[i]
+    return kept
+
+
+def _grid_neighbours(i: int, gx: int, n: int) -> list[int]:
+    """The 4-neighbours of dot ``i`` that exist in a grid of ``n`` dots, ``gx`` per row."""
+    out = [j for j in (i - gx, i + gx) if 0 <= j < n]
+    return out + [j for j in (i - 1, i + 1) if 0 <= j < n and j // gx == i // gx]
 
 
 def _confirmed(found: dict[int, tuple[float, float]], centres: np.ndarray, gx: int) -> dict:
