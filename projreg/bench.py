@@ -38,9 +38,10 @@ from projsynth.shards import ShardReader
 
 from . import ProjregError
 from .baselines import make_baseline
+from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means
 from .evaluate import predict_flow, sample_indices
 from .frames import register_any_size
-from .metrics import BUCKETS, THRESHOLDS, EPEAccumulator
+from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
 from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint
 from .refine import GeometricRefiner
 
@@ -111,6 +112,7 @@ class _Scores:
         self.all = EPEAccumulator()
         self.groups: dict[str, dict[str, EPEAccumulator]] = {g: {} for g in GROUPS}
         self.ms: list[float] = []
+        self.comp: list[dict[str, float | None]] = []  # per sample, with --compensation
 
     def add(self, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, groups: dict[str, str]) -> None:
         one = EPEAccumulator()
@@ -122,6 +124,8 @@ class _Scores:
     def result(self, method: Method) -> dict:
         out = {"name": method.name, "kind": method.kind, "refined": method.refined, **self.all.result()}
         out["ms_per_pair"] = float(np.median(self.ms)) if self.ms else None
+        if self.comp:
+            out.update(compensation_means(self.comp))
         out["groups"] = {g: {k: acc.result() for k, acc in accs.items()} for g, accs in self.groups.items()}
         return out
 
@@ -171,6 +175,7 @@ def run_bench(
     limit: int | None = None,
     extra_methods: Sequence[Method] = (),
     device: torch.device | None = None,
+    compensation: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Benchmark checkpoints and baselines on one dataset directory.
@@ -185,6 +190,8 @@ def run_bench(
         limit: evaluate ``limit`` samples spread evenly over the dataset (None: all).
         extra_methods: more methods, reported after the others (a hook for callers and tests).
         device: where models run; default CUDA when available, else CPU.
+        compensation: also judge each method's compensation by what the camera sees
+            (``comp_psnr``, ``comp_ssim`` and an ``uncompensated`` row; :mod:`projreg.closedloop`).
         progress: called ``(done, total)`` after each sample.
 
     Returns:
@@ -210,17 +217,25 @@ def run_bench(
         if len(set(names)) < len(names):
             raise ProjregError(f"method names must be unique, got {', '.join(names)}")
         scores = [_Scores() for _ in methods]
+        loop, uncompensated = (ClosedLoop(data), _Scores()) if compensation else (None, None)
         first = _read(reader, indices[0])
         for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
             register_any_size(m.predict, first["projected"], first["captured"])
         for done, k in enumerate(indices, start=1):
             s = first if done == 1 else _read(reader, k)
             groups = sample_groups(s["params"])
+            preds = {}
             for m, sc in zip(methods, scores, strict=True):
                 t0 = time.perf_counter()
                 pred = register_any_size(m.predict, s["projected"], s["captured"])
                 sc.ms.append(1000 * (time.perf_counter() - t0))
                 sc.add(pred, s["flow"], s["valid"], groups)
+                preds[m.name] = pred
+            if loop is not None:
+                comp = loop.score(k, s, preds)
+                uncompensated.comp.append(comp.pop(UNCOMPENSATED))
+                for m, sc in zip(methods, scores, strict=True):
+                    sc.comp.append(comp[m.name])
             if progress:
                 progress(done, len(indices))
     finally:
@@ -229,8 +244,12 @@ def run_bench(
     dataset = {"path": str(data), "num_samples": len(reader), "evaluated": len(indices), "size": man.get("size"),
                "camera_size": man.get("camera_size", man.get("size")), "seed": man.get("seed"),
                "split": man.get("split"), "config_hash": man.get("config_hash")}  # fmt: skip
+    results = [sc.result(m) for m, sc in zip(methods, scores, strict=True)]
+    if uncompensated is not None:
+        row = uncompensated.result(Method(UNCOMPENSATED, "none", lambda a, b: a))
+        results.append({**row, **{k: None for k in KEYS if k not in ("pixels", "images")}, "ms_per_pair": None})
     return {"dataset": dataset, "reference_model": None if reference is None else str(reference),
-            "results": [sc.result(m) for m, sc in zip(methods, scores, strict=True)]}  # fmt: skip
+            "results": results}
 
 
 def _read(reader: ShardReader, k: int) -> dict:
@@ -285,8 +304,8 @@ def check_thresholds(report: dict, thresholds: Sequence[tuple[str, float, str | 
             if name in (None, r["name"]) and r[metric] is not None and r[metric] > limit]  # fmt: skip
 
 
-def _fmt(value: float | None, scale: float = 1.0) -> str:
-    return "–" if value is None else f"{scale * value:.2f}"
+def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
+    return "–" if value is None else f"{scale * value:.{digits}f}"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -295,10 +314,14 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 
 
 def compact_table(report: dict) -> str:
-    """One row per method: EPE, buckets, outlier rates in percent, ms per pair."""
+    """One row per method: EPE, buckets, outlier rates in percent, ms per pair (and, with compensation,
+    its PSNR and SSIM beside the EPE: where the two rankings disagree is what EPE cannot see)."""
+    comp = any("comp_psnr" in r for r in report["results"])
     header = ["method", "kind", "EPE", *BUCKETS, *(f"px{t} %" for t in THRESHOLDS), "ms/pair"]
+    header += ["comp PSNR dB", "comp SSIM"] if comp else []
     rows = [[r["name"], r["kind"], *(_fmt(r[k]) for k in ("epe", *BUCKETS)),
              *(_fmt(r[f"px{t}"], 100) for t in THRESHOLDS), _fmt(r["ms_per_pair"])]
+            + ([_fmt(r.get("comp_psnr")), _fmt(r.get("comp_ssim"), digits=3)] if comp else [])
             for r in report["results"]]  # fmt: skip
     return _table(header, rows)
 
@@ -306,9 +329,10 @@ def compact_table(report: dict) -> str:
 def to_markdown(report: dict) -> str:
     """The paper's Table 2 (method x metric rows, ``pair P / role`` columns + all), then ``compact_table``."""
     ds = report["dataset"]
-    columns = list(dict.fromkeys(k for r in report["results"] for k in r["groups"]["pair_role"]))
+    flows = [r for r in report["results"] if r["kind"] != "none"]  # the uncompensated row has no flow
+    columns = list(dict.fromkeys(k for r in flows for k in r["groups"]["pair_role"]))
     rows = [[r["name"], label, *(_fmt(r["groups"]["pair_role"].get(c, {}).get(key)) for c in columns),
-             _fmt(r[key])] for r in report["results"] for label, key in TABLE_METRICS]  # fmt: skip
+             _fmt(r[key])] for r in flows for label, key in TABLE_METRICS]  # fmt: skip
     size = "x".join(str(v) for v in ds["size"]) if ds["size"] else "?"
     ref = report["reference_model"]
     lines = [f"# projreg bench: {ds['path']}", "",

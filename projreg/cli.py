@@ -131,6 +131,9 @@ def export(
     typer.echo(f"{out}: step {slim.get('step')}, {out.stat().st_size / 2**20:.2f} MiB", err=True)
 
 
+COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
+
+
 @app.command()
 def bench(
     data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).")],
@@ -146,6 +149,7 @@ def bench(
     fail_above: Annotated[list[str] | None, typer.Option(help="[NAME:]METRIC=VALUE gate on models (repeatable; "
                                                               "NAME: that model only).")] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
+    compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
@@ -164,7 +168,7 @@ def bench(
                 bar.update(done - bar.n)
 
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
-                                   limit=limit, progress=progress)  # fmt: skip
+                                   limit=limit, compensation=compensation, progress=progress)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown)  # both or neither
         violations = lib.check_thresholds(report, thresholds)
     except ProjregError as e:

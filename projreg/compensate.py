@@ -22,14 +22,22 @@ from . import ProjregError
 from .predict import require_suffix, write_png
 
 
-def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: int = 0) -> np.ndarray:
+def compensate(
+    content: np.ndarray,
+    flow: np.ndarray,
+    valid: np.ndarray,
+    fill: int = 0,
+    camera_size: tuple[int, int] | None = None,
+) -> np.ndarray:
     """The projector image that makes the camera see ``content``.
 
     Args:
-        content: ``(Hc, Wc, 3)`` uint8 RGB desired camera view (any size: flow positions are scaled to it).
-        flow: ``(H, W, 2)`` float32 forward flow projected -> captured, in pixels of an ``H x W`` camera.
+        content: ``(Hc', Wc', 3)`` uint8 RGB desired camera view, spanning the camera frame (any size:
+            flow positions are scaled to it).
+        flow: ``(H, W, 2)`` float32 forward flow projected -> captured, in pixels of the camera frame.
         valid: ``(H, W)`` bool.
         fill: value of projector pixels without a valid correspondence.
+        camera_size: the camera frame ``(Hc, Wc)`` the flow's positions are in; None: ``(H, W)``.
 
     Returns:
         ``(H, W, 3)`` uint8 projector image.
@@ -38,10 +46,11 @@ def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: i
     if flow.shape != (h, w, 2):
         raise ProjregError(f"flow has shape {flow.shape}, expected {(h, w, 2)}")
     ch, cw = content.shape[:2]
+    cam_h, cam_w = camera_size or (h, w)
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     # camera position in content pixels (pixel centres at integers in both frames)
-    mx = (xs + flow[..., 0] + 0.5) * (cw / w) - 0.5
-    my = (ys + flow[..., 1] + 0.5) * (ch / h) - 0.5
+    mx = (xs + flow[..., 0] + 0.5) * (cw / cam_w) - 0.5
+    my = (ys + flow[..., 1] + 0.5) * (ch / cam_h) - 0.5
     out = cv2.remap(content, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     out[~valid] = fill
     return out

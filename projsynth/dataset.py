@@ -22,6 +22,7 @@ from .photometric import BLENDS
 from .procedural import THEMES, render_procedural
 from .render import render
 from .rig import make_scene
+from .scene import Scene
 from .sources import SPLITS, FolderSource, SourceImage, fit_to_size, load_image
 from .transforms import TransformTable, draw, load_table, parse_selection
 
@@ -186,17 +187,41 @@ class Sample:
         return h.hexdigest()
 
 
-def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
-    """Render sample ``k`` of ``plan`` (``images``: the pair's sources, if the caller has them)."""
+@dataclass(frozen=True)
+class SampleScene:
+    """Everything sample ``k`` draws before it renders: its images, scene and photometry, and its
+    generator in the state the renderer continues from (transparency field, then noise)."""
+
+    projected: np.ndarray
+    background: np.ndarray
+    scene: Scene
+    geometry: dict
+    photometry: dict
+    rng: np.random.Generator
+
+
+def sample_scene(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> SampleScene:
+    """The draws of sample ``k`` up to rendering (``images``: the pair's sources, if the caller has them)."""
     pair, role, tid = sample_key(plan, k)
-    natural, generated, origin = images if images is not None else source_images(plan, pair)
+    natural, generated, _ = images if images is not None else source_images(plan, pair)
     projected, background = (natural, generated) if role == 0 else (generated, natural)
     cfg = plan.table.configs[tid]
     ss = np.random.SeedSequence(plan.seed, spawn_key=(_SAMPLE, SPLITS.index(plan.split), pair, role, tid))
     rng = np.random.default_rng(ss)
     scene, geometry = make_scene(cfg.family, cfg.geometry, rng, plan.size)
     photometry = draw(rng, cfg.photometry)
-    out = render(projected, background, scene, photometry, plan.blend, rng)
+    return SampleScene(projected, background, scene, geometry, photometry, rng)
+
+
+def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
+    """Render sample ``k`` of ``plan`` (``images``: the pair's sources, if the caller has them)."""
+    pair, role, tid = sample_key(plan, k)
+    images = images if images is not None else source_images(plan, pair)
+    origin = images[2]
+    cfg = plan.table.configs[tid]
+    s = sample_scene(plan, k, images)
+    projected, scene, geometry, photometry = s.projected, s.scene, s.geometry, s.photometry
+    out = render(projected, s.background, scene, photometry, plan.blend, s.rng)
     params = {
         "sample_id": sample_id(plan, k),
         "pair": pair,

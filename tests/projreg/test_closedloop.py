@@ -1,0 +1,60 @@
+"""Compensation judged by the camera's view: re-rendering is exact, the scores rank flows by what shows."""
+
+import numpy as np
+import pytest
+
+from projreg import ProjregError
+from projreg.bench import Method, run_bench, to_markdown
+from projreg.closedloop import UNCOMPENSATED, ClosedLoop
+from projsynth.dataset import resolve_plan
+from projsynth.generate import generate
+from projsynth.rerender import Rerenderer
+from projsynth.shards import ShardReader
+
+
+@pytest.fixture(scope="module")
+def physical(tmp_path_factory):
+    plan = resolve_plan(size=(64, 96), seed=4, split="test", pairs=1, transforms="2,47,128", blend="physical")
+    root = tmp_path_factory.mktemp("cl") / "ds"
+    generate(plan, root, shard_size=8)
+    return root
+
+
+def test_rerendering_the_projected_image_gives_the_stored_photo_back(tiny_train, physical):
+    for root in (tiny_train, physical):
+        reader, rerenderer = ShardReader(root), Rerenderer(root)
+        for k in range(0, len(reader), 3):
+            s = reader.read(k)
+            view = rerenderer.views(k, [s["projected"]])[0]
+            np.testing.assert_array_equal(view.image, s["captured"])
+
+
+def test_scores_rank_flows_by_their_error(physical):
+    reader, loop = ShardReader(physical), ClosedLoop(physical)
+    for k in range(len(reader)):
+        s = reader.read(k)
+        flows = {"truth": s["flow"], **{f"off{d}": s["flow"] + np.float32(d) for d in (1, 3)}}
+        scores = loop.score(k, s, flows)
+        assert scores["truth"]["comp_psnr"] == 99.0 and scores["truth"]["comp_ssim"] == pytest.approx(1.0, abs=1e-3)
+        psnr = [scores[n]["comp_psnr"] for n in ("truth", "off1", "off3")]
+        assert psnr == sorted(psnr, reverse=True), psnr
+        assert scores[UNCOMPENSATED]["comp_psnr"] < 60
+        assert scores["off3"]["comp_ssim"] < scores["off1"]["comp_ssim"] < 1
+
+
+def test_bench_reports_compensation_rows(tiny_train):
+    zero = Method("zero", "baseline", lambda a, b: np.zeros((*a.shape[:2], 2), np.float32))
+    report = run_bench(tiny_train, baselines=("dis-medium",), extra_methods=[zero], limit=4, compensation=True)
+    rows = {r["name"]: r for r in report["results"]}
+    assert list(rows)[-1] == UNCOMPENSATED and rows[UNCOMPENSATED]["kind"] == "none"
+    assert rows[UNCOMPENSATED]["epe"] is None
+    for name in ("reference", "dis-medium", "zero", UNCOMPENSATED):
+        assert 0 < rows[name]["comp_psnr"] < 99 and 0 < rows[name]["comp_ssim"] <= 1
+    assert rows["reference"]["comp_psnr"] > rows[UNCOMPENSATED]["comp_psnr"]
+    assert "comp PSNR dB" in to_markdown(report)
+
+
+def test_compensation_needs_a_generated_dataset(tmp_path, tiny_train):
+    (tmp_path / "dataset.json").write_text('{"captured": {}}')
+    with pytest.raises(ProjregError, match="--compensation"):
+        ClosedLoop(tmp_path)
