@@ -176,6 +176,7 @@ def run_bench(
     extra_methods: Sequence[Method] = (),
     device: torch.device | None = None,
     compensation: bool = False,
+    photometric: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Benchmark checkpoints and baselines on one dataset directory.
@@ -192,6 +193,8 @@ def run_bench(
         device: where models run; default CUDA when available, else CPU.
         compensation: also judge each method's compensation by what the camera sees
             (``comp_psnr``, ``comp_ssim`` and an ``uncompensated`` row; :mod:`projreg.closedloop`).
+        photometric: with ``compensation``, also geometric-only vs geometric + photometric against the
+            desired view (``geo_*``, ``photo_*``).
         progress: called ``(done, total)`` after each sample.
 
     Returns:
@@ -217,7 +220,9 @@ def run_bench(
         if len(set(names)) < len(names):
             raise ProjregError(f"method names must be unique, got {', '.join(names)}")
         scores = [_Scores() for _ in methods]
-        loop, uncompensated = (ClosedLoop(data), _Scores()) if compensation else (None, None)
+        if photometric and not compensation:
+            raise ProjregError("--photometric needs --compensation (it scores the camera's view of a compensation)")
+        loop, uncompensated = (ClosedLoop(data, photometric), _Scores()) if compensation else (None, None)
         first = _read(reader, indices[0])
         for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
             register_any_size(m.predict, first["projected"], first["captured"])

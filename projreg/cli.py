@@ -132,6 +132,7 @@ def export(
 
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
+PHOTOMETRIC_HELP = "With --compensation: geometric vs geometric + photometric against the desired view."
 
 
 @app.command()
@@ -150,6 +151,7 @@ def bench(
                                                               "NAME: that model only).")] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
+    photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
@@ -168,7 +170,8 @@ def bench(
                 bar.update(done - bar.n)
 
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
-                                   limit=limit, compensation=compensation, progress=progress)  # fmt: skip
+                                   limit=limit, compensation=compensation, photometric=photometric,
+                                   progress=progress)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown)  # both or neither
         violations = lib.check_thresholds(report, thresholds)
     except ProjregError as e:
@@ -218,12 +221,20 @@ def compensate(
     flow: Annotated[Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).")],
     out: Annotated[Path, typer.Option(help="Projector image to write (PNG).")],
     fill: Annotated[int, typer.Option(help="Grey level of projector pixels without correspondence.")] = 0,
+    photometric: Annotated[bool, typer.Option("--photometric", help="Also correct colour and light "
+                                              "(needs --white and --black).")] = False,
+    white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.")] = None,
+    black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.")] = None,
+    gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
 ) -> None:
     """Pre-warp content: the projector image that makes the camera see CONTENT undistorted."""
     from .compensate import compensate_files
 
     try:
-        compensate_files(content, flow, out, fill)
+        if photometric and (white is None or black is None):
+            raise ProjregError("--photometric needs --white and --black: the camera's photos of a full-white and "
+                               "a full-black projection")  # fmt: skip
+        compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
     except ProjregError as e:
         raise _fail(e) from None
 

@@ -13,6 +13,12 @@ silhouette's antialiasing does not count. Both views carry the same noise, so th
 geometry. SSIM is scikit-image's (Gaussian window, sigma 1.5, on each RGB channel), averaged over
 the region; PSNR is over the region's pixels and channels (peak 255). Per row: means over samples.
 
+With ``photometric``, each row also gets ``geo_*`` (the camera's view of the geometric compensation)
+and ``photo_*`` (geometric + photometric, :mod:`projreg.radiometric`, calibrated from the camera's
+views of a white and a black projection of the same scene) against the **desired view** (the content
+spanning the camera frame) up to one global brightness and contrast per channel
+(:func:`desired_scores`): PSNR, SSIM and the mean CIEDE2000 colour difference, over the same region.
+
 Example of the region rule: a projector pixel that misses the surface lights no camera pixel, so
 errors there cannot be seen and do not count; a flow error inside a flat-coloured area moves flat
 colour onto flat colour and costs little PSNR, while the same error on texture costs a lot.
@@ -24,6 +30,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from skimage.color import deltaE_ciede2000, rgb2lab
 from skimage.metrics import structural_similarity
 
 from projsynth import ProjsynthError
@@ -31,37 +38,62 @@ from projsynth.rerender import Rerenderer, View
 
 from . import ProjregError
 from .compensate import compensate
+from .radiometric import calibrate, solve, to_linear
 
 UNCOMPENSATED = "uncompensated"
 REGION_ERODE_PX = 2
+WHITE_LEVEL = 192  # the calibration's "white": the simulated camera has no exposure to lower, so white would clip
 
 
 class ClosedLoop:
-    """Per sample: photograph each method's compensation and score it against the ground truth's."""
+    """Per sample: photograph each method's compensation and score it against the ground truth's
+    (and, with ``photometric``, against the desired view: geometric only vs geometric + photometric)."""
 
-    def __init__(self, data: Path):
+    def __init__(self, data: Path, photometric: bool = False):
         try:
             self.rerenderer = Rerenderer(Path(data))
         except ProjsynthError as e:
             raise ProjregError(f"--compensation: {e}") from e
+        # the devices' gamma, as a user calibrating that rig would set it: the paper's blend is linear,
+        # the physical model has projector gamma 2.2 and a camera response of 2.0-2.4
+        self.photometric, self.gamma = photometric, 1.0 if self.rerenderer.plan.blend == "paper" else 2.2
+
+    def _views(self, k: int, images: list[np.ndarray]) -> list[View]:
+        try:
+            return self.rerenderer.views(k, images)
+        except ProjsynthError as e:
+            raise ProjregError(f"--compensation: sample {k}: {e}") from e
 
     def score(self, k: int, sample: dict, flows: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
-        """``{method: {comp_psnr, comp_ssim}}`` for sample ``k`` (its reader dict), plus ``uncompensated``.
+        """``{method: {comp_psnr, comp_ssim, ...}}`` for sample ``k`` (its reader dict), plus ``uncompensated``.
 
         Args:
             flows: each method's forward flow ``(H, W, 2)`` in captured pixels.
         """
         content = sample["projected"]
-        camera = sample["captured"].shape
-        images = [compensate(content, sample["flow"], sample["valid"], camera_size=camera[:2]), content]
-        images += [compensate(content, f, np.isfinite(f).all(axis=2), camera_size=camera[:2]) for f in flows.values()]
-        try:
-            views = self.rerenderer.views(k, images)
-        except ProjsynthError as e:
-            raise ProjregError(f"--compensation: sample {k}: {e}") from e
+        camera = sample["captured"].shape[:2]
+
+        def warp(image: np.ndarray, flow: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+            return compensate(
+                image, flow, np.isfinite(flow).all(axis=2) if valid is None else valid, camera_size=camera
+            )
+
+        images = [warp(content, sample["flow"], sample["valid"]), content, *(warp(content, f) for f in flows.values())]
+        views = self._views(k, images)
         region = compared_region(views[0], sample["valid"])
         names = [UNCOMPENSATED, *flows]
-        return {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=True)}
+        out = {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=True)}
+        if self.photometric:
+            wanted = cv2.resize(content, camera[::-1], interpolation=cv2.INTER_AREA)
+            white, black = self._views(k, [np.full_like(content, WHITE_LEVEL), np.zeros_like(content)])
+            model = calibrate(white.image, black.image, self.gamma, WHITE_LEVEL / 255)
+            needed, _ = solve(wanted, model, region)
+            photo = self._views(k, [warp(needed, f) for f in flows.values()])
+            for name, geo, ph in zip(names, views[1:], [None, *photo], strict=True):
+                out[name].update(desired_scores(geo.image, wanted, region, self.gamma, "geo"))
+                none = dict.fromkeys(("photo_psnr", "photo_ssim", "photo_de2000"))
+                out[name].update(none if ph is None else desired_scores(ph.image, wanted, region, self.gamma, "photo"))
+        return out
 
 
 def compared_region(truth_view: View, valid: np.ndarray) -> np.ndarray:
@@ -94,10 +126,43 @@ def view_scores(view: np.ndarray, reference: np.ndarray, region: np.ndarray) -> 
     return {"comp_psnr": float(psnr), "comp_ssim": float(ssim.mean(axis=2)[region].mean())}
 
 
+def desired_scores(view: np.ndarray, wanted: np.ndarray, region: np.ndarray, gamma: float, prefix: str) -> dict:
+    """``{prefix}_psnr``, ``_ssim`` and ``_de2000`` (mean CIEDE2000) of the camera's view against the desired
+    view as this surface can show it at best: per channel, ``a + b * wanted`` in linear light, fitted to
+    the view by least squares over ``region`` (a projector cannot make a dark surface as bright as paper,
+    so one global brightness and contrast are free). This does not charge a dim view for its lost
+    contrast; SSIM's contrast term and the colour difference do, in part."""
+    keys = [f"{prefix}_{m}" for m in ("psnr", "ssim", "de2000")]
+    if region.sum() < 16:
+        return dict.fromkeys(keys)
+    v, d = to_linear(view, gamma), to_linear(wanted, gamma)
+    fitted = np.empty_like(d)
+    for c in range(3):
+        A = np.stack([np.ones(region.sum()), d[..., c][region]], 1)
+        a, b = np.linalg.lstsq(A, v[..., c][region], rcond=None)[0]
+        fitted[..., c] = np.clip(a + b * d[..., c], 0, 1)
+    reference = np.clip(np.rint(255 * fitted ** (1 / gamma)), 0, 255).astype(np.uint8)
+    scores = view_scores(view, reference, region)
+    de = deltaE_ciede2000(rgb2lab(view[region][None]), rgb2lab(reference[region][None]))
+    return dict(zip(keys, (scores["comp_psnr"], scores["comp_ssim"], float(de.mean())), strict=True))
+
+
+COMPENSATION_KEYS = (
+    "comp_psnr",
+    "comp_ssim",
+    "geo_psnr",
+    "photo_psnr",
+    "geo_ssim",
+    "photo_ssim",
+    "geo_de2000",
+    "photo_de2000",
+)
+
+
 def compensation_means(scores: list[dict[str, float | None]]) -> dict[str, float | None]:
-    """Means over samples of ``comp_psnr`` and ``comp_ssim`` (samples with an empty region skipped)."""
+    """Means over samples of every compensation score present (samples with an empty region skipped)."""
     out = {}
-    for key in ("comp_psnr", "comp_ssim"):
+    for key in (k for k in COMPENSATION_KEYS if k in scores[0]):
         values = [s[key] for s in scores if s[key] is not None]
         out[key] = float(np.mean(values)) if values else None
     return out

@@ -20,6 +20,7 @@ from projsynth.sources import load_image
 
 from . import ProjregError
 from .predict import require_suffix, write_png
+from .radiometric import calibrate, solve
 
 
 def compensate(
@@ -56,14 +57,32 @@ def compensate(
     return out
 
 
-def compensate_files(content: Path, flow: Path, out: Path, fill: int = 0) -> None:
-    """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG)."""
+def compensate_files(
+    content: Path,
+    flow: Path,
+    out: Path,
+    fill: int = 0,
+    photometric: tuple[Path, Path] | None = None,
+    gamma: float = 2.2,
+) -> None:
+    """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG).
+
+    ``photometric``: the camera's photos ``(white, black)`` of a full-white and a full-black
+    projection; the desired view is then also corrected for the surface's colour and light
+    (:mod:`projreg.radiometric`) in the photos' frame before the geometric pre-warp.
+    """
     require_suffix(Path(out), ".png", "--out")
+    if not 0 <= fill <= 255:
+        raise ProjregError(f"--fill: must be in 0..255, got {fill}")
     try:
         image = load_image(Path(content))
         f, valid, _ = read_flow_exr(Path(flow))
+        photos = None if photometric is None else [load_image(Path(p)) for p in photometric]
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-    if not 0 <= fill <= 255:
-        raise ProjregError(f"--fill: must be in 0..255, got {fill}")
-    write_png(Path(out), compensate(image, f, valid, fill))
+    camera = None
+    if photos is not None:
+        model = calibrate(photos[0], photos[1], gamma)
+        camera = photos[0].shape[:2]
+        image = solve(cv2.resize(image, camera[::-1], interpolation=cv2.INTER_AREA), model)[0]
+    write_png(Path(out), compensate(image, f, valid, fill, camera_size=camera))
