@@ -33,12 +33,13 @@ import numpy as np
 import torch
 
 from projsynth import ProjsynthError
+from projsynth.export import png_bytes
 from projsynth.flowio import write_atomic_all
 from projsynth.shards import ShardReader
 
 from . import ProjregError
 from .baselines import make_baseline
-from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means
+from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_header, sheet_row
 from .evaluate import predict_flow, sample_indices
 from .frames import register_any_size
 from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
@@ -50,6 +51,7 @@ GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
 GROUPS = ("role", "family", "condition", "pair_role")
 TABLE_METRICS = (("EPE", "epe"), *((b, b) for b in BUCKETS))
 REFINE_MODES = ("on", "off", "both")
+SHEET_ROWS = 4
 
 
 @dataclass(frozen=True)
@@ -177,6 +179,7 @@ def run_bench(
     device: torch.device | None = None,
     compensation: bool = False,
     photometric: bool = False,
+    sheet: list[np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Benchmark checkpoints and baselines on one dataset directory.
@@ -195,6 +198,8 @@ def run_bench(
             (``comp_psnr``, ``comp_ssim`` and an ``uncompensated`` row; :mod:`projreg.closedloop`).
         photometric: with ``compensation``, also geometric-only vs geometric + photometric against the
             desired view (``geo_*``, ``photo_*``).
+        sheet: with ``compensation``, a list that receives a contact-sheet row (``closedloop.sheet_row``)
+            for each of the first ``SHEET_ROWS`` samples: the first method's pictures.
         progress: called ``(done, total)`` after each sample.
 
     Returns:
@@ -241,6 +246,9 @@ def run_bench(
                 uncompensated.comp.append(comp.pop(UNCOMPENSATED))
                 for m, sc in zip(methods, scores, strict=True):
                     sc.comp.append(comp[m.name])
+                if sheet is not None and done <= SHEET_ROWS:
+                    sheet.append(sheet_row(loop.last_views, methods[0].name, f"{s['params']['sample_id']}: "
+                                           f"{methods[0].name}"))  # fmt: skip
             if progress:
                 progress(done, len(indices))
     finally:
@@ -347,11 +355,18 @@ def to_markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(report: dict, *, json_path: Path | None, markdown_path: Path | None) -> None:
-    """The report as JSON and/or Markdown, all or nothing (one unwritable path leaves neither)."""
+def write_outputs(
+    report: dict, *, json_path: Path | None, markdown_path: Path | None, sheet: tuple[Path, list] | None = None
+) -> None:
+    """The report as JSON and/or Markdown (and a contact sheet ``(path, rows)``), all or nothing (one
+    unwritable path leaves none)."""
     files = [(Path(json_path), (json.dumps(report, indent=1) + "\n").encode())] if json_path else []
     if markdown_path:
         files.append((Path(markdown_path), to_markdown(report).encode()))
+    if sheet is not None and sheet[1]:
+        rows = sheet[1]
+        picture = np.vstack([sheet_header(rows[0].shape[1] // 5), *rows])
+        files.append((Path(sheet[0]), png_bytes(Path(sheet[0]), picture)))
     try:
         write_atomic_all(files, make_parents=True)
     except ProjsynthError as e:

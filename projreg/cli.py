@@ -152,6 +152,8 @@ def bench(
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
+    sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
+                                                    "samples.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
@@ -160,6 +162,10 @@ def bench(
 
     try:
         thresholds = [lib.parse_threshold(spec) for spec in fail_above or []]
+        if sheet is not None and (not compensation or sheet.suffix.lower() != ".png"):
+            raise ProjregError(f"--sheet {sheet}: a PNG contact sheet of compensations; give --compensation and a "
+                               "name ending in .png")  # fmt: skip
+        rows: list = []
         if baselines is None:
             names = list(lib.DEFAULT_BASELINES)
         else:
@@ -171,8 +177,9 @@ def bench(
 
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
                                    limit=limit, compensation=compensation, photometric=photometric,
-                                   progress=progress)  # fmt: skip
-        lib.write_outputs(report, json_path=json_out, markdown_path=markdown)  # both or neither
+                                   sheet=rows, progress=progress)  # fmt: skip
+        lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
+                          sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
     except ProjregError as e:
         raise _fail(e) from None

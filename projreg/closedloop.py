@@ -57,6 +57,7 @@ class ClosedLoop:
         # the devices' gamma, as a user calibrating that rig would set it: the paper's blend is linear,
         # the physical model has projector gamma 2.2 and a camera response of 2.0-2.4
         self.photometric, self.gamma = photometric, 1.0 if self.rerenderer.plan.blend == "paper" else 2.2
+        self.last_views: dict[str, np.ndarray] = {}  # the last sample's pictures, for contact sheets
 
     def _views(self, k: int, images: list[np.ndarray]) -> list[View]:
         try:
@@ -83,12 +84,15 @@ class ClosedLoop:
         region = compared_region(views[0], sample["valid"])
         names = [UNCOMPENSATED, *flows]
         out = {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=True)}
+        self.last_views = {"truth": views[0].image, **{n: v.image for n, v in zip(names, views[1:], strict=True)}}
         if self.photometric:
             wanted = cv2.resize(content, camera[::-1], interpolation=cv2.INTER_AREA)
             white, black = self._views(k, [np.full_like(content, WHITE_LEVEL), np.zeros_like(content)])
             model = calibrate(white.image, black.image, self.gamma, WHITE_LEVEL / 255)
             needed, _ = solve(wanted, model, region)
             photo = self._views(k, [warp(needed, f) for f in flows.values()])
+            corrected = {f"{n}+photometric": v.image for n, v in zip(flows, photo, strict=True)}
+            self.last_views.update({"desired": wanted, **corrected})
             for name, geo, ph in zip(names, views[1:], [None, *photo], strict=True):
                 out[name].update(desired_scores(geo.image, wanted, region, self.gamma, "geo"))
                 none = dict.fromkeys(("photo_psnr", "photo_ssim", "photo_de2000"))
@@ -166,3 +170,26 @@ def compensation_means(scores: list[dict[str, float | None]]) -> dict[str, float
         values = [s[key] for s in scores if s[key] is not None]
         out[key] = float(np.mean(values)) if values else None
     return out
+
+
+SHEET_COLUMNS = ("desired", UNCOMPENSATED, "geometric", "geometric + photometric", "ground-truth compensation")
+
+
+def sheet_row(views: dict[str, np.ndarray], method: str, label: str) -> np.ndarray:
+    """One contact-sheet row from :attr:`ClosedLoop.last_views`: desired view | uncompensated photo |
+    ``method``'s geometric compensation | geometric + photometric | ground-truth compensation's photo
+    (a missing picture is black), with ``label`` over the first picture."""
+    ref = views["truth"]
+    keys = ("desired", UNCOMPENSATED, method, f"{method}+photometric", "truth")
+    row = np.hstack([views.get(k, np.zeros_like(ref)) for k in keys])
+    cv2.putText(row, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 2, cv2.LINE_AA)
+    cv2.putText(row, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return row
+
+
+def sheet_header(width: int) -> np.ndarray:
+    """A white strip naming the columns of :func:`sheet_row` (each ``width`` px wide)."""
+    strip = np.full((22, width * len(SHEET_COLUMNS), 3), 255, np.uint8)
+    for i, name in enumerate(SHEET_COLUMNS):
+        cv2.putText(strip, name, (i * width + 6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return strip

@@ -58,3 +58,32 @@ def test_compensation_needs_a_generated_dataset(tmp_path, tiny_train):
     (tmp_path / "dataset.json").write_text('{"captured": {}}')
     with pytest.raises(ProjregError, match="--compensation"):
         ClosedLoop(tmp_path)
+
+
+def test_bench_writes_a_labelled_contact_sheet(tiny_train, tmp_path):
+    import cv2
+    from typer.testing import CliRunner
+
+    from projreg.cli import app
+
+    sheet = tmp_path / "sheet.png"
+    args = [
+        "bench",
+        "--data",
+        str(tiny_train),
+        "--baselines",
+        "none",
+        "--limit",
+        "2",
+        "--compensation",
+        "--photometric",
+        "--sheet",
+        str(sheet),
+        "--quiet",
+    ]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.stderr
+    picture = cv2.imread(str(sheet))
+    assert picture.shape[1] == 5 * 96 and picture.shape[0] == 22 + 2 * 64  # header + two samples
+    bad = CliRunner().invoke(app, ["bench", "--data", str(tiny_train), "--sheet", str(sheet)])
+    assert bad.exit_code == 2 and "--compensation" in bad.stderr
