@@ -10,7 +10,7 @@ import typer
 
 from projsynth.cli import app
 
-COMMANDS = {"gen", "merge", "verify", "inspect", "export", "preview", "transforms"}
+COMMANDS = {"gen", "merge", "verify", "inspect", "export", "preview", "transforms", "patterns", "capture", "decode"}
 SMALL = ["--pairs", "1", "--size", "48x64", "--transforms", "0-3", "--shard-size", "2"]  # 8 samples, 4 shards
 
 
