@@ -70,7 +70,17 @@ class Plan:
         }
 
     def config_hash(self) -> str:
-        return hashlib.sha256(json.dumps(self.describe(), sort_keys=True).encode()).hexdigest()
+        return plan_hash(self.describe())
+
+
+# The keys of ``Plan.describe()``: what ``config_hash`` covers (a manifest's copy of them must hash to it)
+PLAN_KEYS = ("format_version", "generator", "size", "seed", "split", "pairs", "transforms", "blend",
+             "table_version", "table_digest", "sources")  # fmt: skip
+
+
+def plan_hash(described: dict) -> str:
+    """``config_hash``: sha256 of the ``PLAN_KEYS`` of ``described`` as canonical JSON."""
+    return hashlib.sha256(json.dumps({k: described[k] for k in PLAN_KEYS}, sort_keys=True).encode()).hexdigest()
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -101,8 +111,8 @@ def resolve_plan(
         raise ProjsynthError(f"--split: {split!r} is not one of {', '.join(SPLITS)}")
     if blend not in BLENDS:
         raise ProjsynthError(f"--blend: {blend!r} is not one of {', '.join(BLENDS)}")
-    if seed < 0:
-        raise ProjsynthError(f"--seed: must be >= 0, got {seed}")
+    if not 0 <= seed < 2**64:  # a shard records it as an unsigned 64-bit attribute
+        raise ProjsynthError(f"--seed: must be in 0..{2**64 - 1}, got {seed}")
     if pairs is not None and pairs < 1:
         raise ProjsynthError(f"--pairs: must be >= 1, got {pairs}")
     if (natural is None) != (generated is None):
