@@ -4,7 +4,7 @@ Convention: with the forward flow ``F`` (projected -> captured, on the projector
 pixel ``p`` lands on camera pixel ``p + F(p)``. To make the camera see ``content`` (an image in the
 camera frame), the projector shows ``content`` sampled at ``p + F(p)``; no inversion of the flow is
 needed. Projector pixels whose flow is invalid (they miss the surface, are hidden from the camera, or
-land outside its frame) are set to ``fill``.
+land outside its frame) and pixels whose flow is NaN or Inf are set to ``fill``.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from projsynth.flowio import read_flow_exr
 from projsynth.sources import load_image
 
 from . import ProjregError
-from .predict import require_suffix, write_png
+from .predict import refuse_overwriting_inputs, require_suffix, write_png
 
 
 def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: int = 0) -> np.ndarray:
@@ -28,15 +28,21 @@ def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: i
     Args:
         content: ``(Hc, Wc, 3)`` uint8 RGB desired camera view (any size: flow positions are scaled to it).
         flow: ``(H, W, 2)`` float32 forward flow projected -> captured, in pixels of an ``H x W`` camera.
-        valid: ``(H, W)`` bool.
+        valid: ``(H, W)`` bool; pixels with non-finite flow count as invalid too.
         fill: value of projector pixels without a valid correspondence.
 
     Returns:
         ``(H, W, 3)`` uint8 projector image.
+
+    Raises:
+        ProjregError: the flow's shape differs from ``valid``'s, or no pixel has a valid, finite flow.
     """
     h, w = valid.shape
     if flow.shape != (h, w, 2):
         raise ProjregError(f"flow has shape {flow.shape}, expected {(h, w, 2)}")
+    valid = valid & np.isfinite(flow).all(axis=-1)  # NaN/Inf flow has no correspondence: filled, like invalid
+    if not valid.any():
+        raise ProjregError("flow has no finite valid vector: nothing to compensate; check the flow file")
     ch, cw = content.shape[:2]
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     # camera position in content pixels (pixel centres at integers in both frames)
@@ -50,6 +56,7 @@ def compensate(content: np.ndarray, flow: np.ndarray, valid: np.ndarray, fill: i
 def compensate_files(content: Path, flow: Path, out: Path, fill: int = 0) -> None:
     """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG)."""
     require_suffix(Path(out), ".png", "--out")
+    refuse_overwriting_inputs([("--out", Path(out))], [("--content", Path(content)), ("--flow", Path(flow))])
     try:
         image = load_image(Path(content))
         f, valid, _ = read_flow_exr(Path(flow))
@@ -57,4 +64,8 @@ def compensate_files(content: Path, flow: Path, out: Path, fill: int = 0) -> Non
         raise ProjregError(str(e)) from e
     if not 0 <= fill <= 255:
         raise ProjregError(f"--fill: must be in 0..255, got {fill}")
-    write_png(Path(out), compensate(image, f, valid, fill))
+    try:
+        projector = compensate(image, f, valid, fill)
+    except ProjregError as e:
+        raise ProjregError(f"--flow {flow}: {e}") from e
+    write_png(Path(out), projector)
