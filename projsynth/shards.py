@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import io
 import json
 import os
 import threading
@@ -85,13 +86,13 @@ def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def _shard_image(samples: list[Sample], attrs: dict) -> bytes:
-    """The bytes of a shard file holding ``samples`` (HDF5's in-memory driver; nothing touches the disk)."""
-    with h5py.File(f"shard-{id(samples)}", "w", driver="core", backing_store=False, libver="v110",
-                   track_order=False) as f:  # fmt: skip
+def _shard_image(samples: list[Sample], attrs: dict) -> memoryview:
+    """The bytes of a shard file holding ``samples``, built in a ``BytesIO`` (nothing touches the disk;
+    unlike HDF5's core driver and ``get_file_image``, no second copy of the file is made)."""
+    buf = io.BytesIO()
+    with h5py.File(buf, "w", libver="v110", track_order=False) as f:
         _fill(f, samples, attrs)
-        f.flush()
-        return f.id.get_file_image()
+    return buf.getbuffer()
 
 
 def _fill(f: h5py.File, samples: list[Sample], attrs: dict) -> None:
@@ -226,6 +227,7 @@ class ShardReader:
         self.shard_size = self.manifest["shard_size"]
         self.max_open = max(1, max_open)
         self._files: dict[int, h5py.File] = {}  # in order of last use
+        self._crc: dict[int, np.ndarray | None] = {}  # each opened shard's crc32 dataset (format 2)
         self._pid = os.getpid()
 
     def __len__(self) -> int:
@@ -244,16 +246,18 @@ class ShardReader:
 
     def _open(self, j: int) -> h5py.File:
         """Shard ``j``, refused unless its attributes place it where the manifest says (a shard copied in
-        from another dataset, or renamed, would otherwise be read as this one's)."""
+        from another dataset, or renamed, would otherwise be read as this one's); keeps its ``crc32``."""
         path, entry = self.root / shard_name(j), self.manifest["shards"][j]
         f = open_shard(path)
         try:
             a = f.attrs
             mine = (a.get("config_hash") == self.manifest["config_hash"] and a.get("first_sample")
                     == entry["first_sample"] and a.get("count") == entry["count"])  # fmt: skip
+            self._crc[j] = f["crc32"][:] if "crc32" in f else None  # format 1 shards have none
         except (OSError, KeyError, ValueError) as e:
             f.close()
-            raise ProjsynthError(f"{path}: unreadable attributes ({e}); run `projsynth verify {self.root}`") from e
+            why = _DAMAGED_CHUNK if "filter returned failure" in str(e) else " ".join(str(e).split())
+            raise ProjsynthError(f"{path}: unreadable header ({why}); run `projsynth verify {self.root}`") from e
         if not mine:
             f.close()
             raise ProjsynthError(f"{path}: not this dataset's shard {j} (its config hash, first sample or count "
@@ -268,16 +272,18 @@ class ShardReader:
         ``valid`` comes from the flow EXR (``verify`` checks it equals the ``valid`` dataset). The EXR
         decodes on a short-lived thread (OpenEXR releases the GIL) while the two images decompress here:
         about 1 ms more CPU time, about a third less latency (docs/benchmarks.md). No thread outlives
-        the call, so forking (DataLoader workers) is always safe.
+        the call, so forking (DataLoader workers) is always safe. Format 2: HDF5 verifies each image
+        chunk's Fletcher-32 checksum; the EXR's CRC-32 is checked on the decoding thread, the
+        parameters' here (docs/format.md).
         """
         if not 0 <= k < len(self):
             raise IndexError(k)
         j, i = divmod(k, self.shard_size)
         f = self._file(j)
         try:
-            crc = f["crc32"][i] if "crc32" in f else None  # format 1 shards have none
-            exr = _checked(f["flow_exr"][i].tobytes(), crc, "flow_exr")
-            decoding = _Decoding(exr)
+            crc = None if self._crc[j] is None else self._crc[j][i]
+            exr = f["flow_exr"][i].tobytes()
+            decoding = _Decoding(exr, crc)
             try:
                 out = {"projected": f["projected"][i], "captured": f["captured"][i]}
             finally:
@@ -309,17 +315,18 @@ def _checked(data: bytes, crc: np.ndarray | None, column: str) -> bytes:
 
 
 class _Decoding(threading.Thread):
-    """:func:`decode_flow_exr` of ``data`` on its own thread; ``result()`` joins it and returns
-    ``(flow, valid)`` or raises what the decoder raised."""
+    """The CRC check (``crc``: the sample's ``crc32`` row, or None) and :func:`decode_flow_exr` of
+    ``data`` on its own thread (both release the GIL); ``result()`` joins it and returns
+    ``(flow, valid)`` or raises what the check or the decoder raised."""
 
-    def __init__(self, data: bytes):
+    def __init__(self, data: bytes, crc: np.ndarray | None):
         super().__init__(name="exr-decode", daemon=True)
-        self._data, self._out, self._error = data, None, None
+        self._data, self._crc, self._out, self._error = data, crc, None, None
         self.start()
 
     def run(self) -> None:
         try:
-            self._out = decode_flow_exr(self._data)[:2]
+            self._out = decode_flow_exr(_checked(self._data, self._crc, "flow_exr"))[:2]
         except BaseException as e:  # re-raised in the caller's thread
             self._error = e
 
