@@ -126,9 +126,9 @@ def refuse_overwriting_inputs(outputs: list[tuple[str, Path | None]], inputs: li
             st = os.stat(path) if path is not None else None
         except OSError:
             continue  # not there yet, so no input
-        if st is not None and (st.st_dev, st.st_ino) in existing:
-            source, src = existing[st.st_dev, st.st_ino]
-            raise ProjregError(f"{option} {path}: is the input {source} {src}; write the output to another file")
+        hit = existing.get((st.st_dev, st.st_ino)) if st is not None else None
+        if hit is not None:
+            raise ProjregError(f"{option} {path}: is the input {hit[0]} {hit[1]}; write the output to another file")
 
 
 def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:

@@ -2,7 +2,8 @@
 
 Work is split by shard: each worker process renders a whole shard and writes it atomically, so
 nothing crosses process boundaries but shard indices, and a killed run leaves only ``*.tmp`` files,
-which the next run removes. Finished shards (same config hash) are skipped.
+which the next run removes. Finished shards (same config hash) are skipped. A run holds a lock on
+its shards (``.gen.lock``), so two runs never write one shard.
 """
 
 from __future__ import annotations
@@ -69,7 +70,12 @@ def generate(
 ) -> GenResult:
     """Write the shards of ``plan`` under ``out`` (a subset with ``shards``) and, when all exist,
     the manifest. ``progress_total(n)`` is called once with the samples of the selected shards,
-    ``progress(n)`` with the number of samples each finished (or already done) shard adds."""
+    ``progress(n)`` with the number of samples each finished (or already done) shard adds.
+
+    Raises:
+        ProjsynthError: bad options, an ``out`` holding another dataset, another ``gen`` writing some
+            of the same shards (:func:`claim_shards`), or a shard that cannot be written.
+    """
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
     if workers < 1:
