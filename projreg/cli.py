@@ -11,6 +11,8 @@ from typing import Annotated, NoReturn
 import typer
 from tqdm import tqdm
 
+from projsynth.cli import output_path
+
 from . import ProjregError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -55,7 +57,7 @@ def _parse_crop(text: str) -> tuple[int, int] | None:
 @app.command()
 def train(
     data: Annotated[list[Path], typer.Option(help="Training dataset directory (repeat for several).")],
-    out: Annotated[Path, typer.Option(help="Run directory.")],
+    out: Annotated[Path, typer.Option(help="Run directory.", parser=output_path)],
     val: Annotated[list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).")] = None,
     model: Annotated[str, typer.Option(help="small or base.")] = "small",
     no_ssjm: Annotated[bool, typer.Option("--no-ssjm", help="Build the ablation without SSJM.")] = False,
@@ -119,7 +121,7 @@ def train(
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Option(help="Checkpoint written by `projreg train` (last.pt or best.pt).")],
-    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.")],
+    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.", parser=output_path)],
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance (what bench/predict need)."""
     from .train import export_checkpoint

@@ -14,6 +14,7 @@ Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the pr
 from __future__ import annotations
 
 import importlib.resources
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -114,6 +115,26 @@ def require_suffix(path: Path, suffix: str, option: str) -> None:
                            f"give a name ending in {suffix}")  # fmt: skip
 
 
+def refuse_overwriting_inputs(outputs: list[tuple[str, Path | None]], inputs: list[tuple[str, Path]]) -> None:
+    """Refuse an output that is one of the inputs: the same file (device and inode, so also through
+    a link or another spelling of its path), not just the same string. ``(option, path)`` pairs."""
+    existing = {}
+    for option, path in inputs:
+        try:
+            st = os.stat(path)
+        except OSError:
+            continue  # reading it will fail with its own message
+        existing[st.st_dev, st.st_ino] = (option, path)
+    for option, path in outputs:
+        try:
+            st = os.stat(path) if path is not None else None
+        except OSError:
+            continue  # not there yet, so no input
+        hit = existing.get((st.st_dev, st.st_ino)) if st is not None else None
+        if hit is not None:
+            raise ProjregError(f"{option} {path}: is the input {hit[0]} {hit[1]}; write the output to another file")
+
+
 def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
     """File mode (two files) or folder mode (two folders, pairs by identical relative names).
 
@@ -189,8 +210,13 @@ def predict(
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
     jobs = plan_jobs(projected, captured, out, viz)
+    checkpoint = resolve_checkpoint(model)
+    refuse_overwriting_inputs([(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
+                              [(opt, p) for j in jobs for opt, p in (("--projected", j.projected),
+                                                                     ("--captured", j.captured))]
+                              + [("--model", checkpoint)])  # fmt: skip
     device = device or default_device()
-    net = load_model(resolve_checkpoint(model), device)
+    net = load_model(checkpoint, device)
     refiner = GeometricRefiner() if refine else None
 
     def register(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ and only rank 0 writes. Checkpoints contain only tensors and plain containers
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 import os
@@ -38,7 +39,7 @@ from . import ProjregError, __version__
 from .data import Augment, ShardDataset, StreamSampler
 from .evaluate import evaluate
 from .loss import sequence_loss
-from .model.net import SSJMFlow, build_model, count_parameters
+from .model.net import SSJMFlow, build_model, checked_config, count_parameters
 
 CSV_FIELDS = ("step", "kind", "loss", "epe", "s0-10", "s10-40", "s40+", "px1", "px3", "px5", "lr", "samples_per_s")
 
@@ -74,7 +75,9 @@ class TrainConfig:
                   (self.steps <= self.schedule_steps, f"--steps {self.steps} exceeds --schedule-steps "
                    f"{self.schedule_steps}; raise --schedule-steps"),
                   (0 <= self.warmup_steps < self.schedule_steps, "--warmup-steps must be in [0, --schedule-steps)"),
-                  (self.lr > 0, "--lr must be > 0"), (self.workers >= 0, "--workers must be >= 0"),
+                  (0 < self.lr < math.inf, "--lr must be finite and > 0"),
+                  (0 <= self.seed < 2**32, f"--seed must be in 0..{2**32 - 1} (numpy's seed range)"),
+                  (self.workers >= 0, "--workers must be >= 0"),
                   (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
                   (self.val_every >= 1 or not self.val, "--val-every must be >= 1"),
                   (self.val_samples >= 1, "--val-samples must be >= 1"),
@@ -155,9 +158,11 @@ def require_model(ckpt, path: Path) -> dict:
 
 
 def model_from_checkpoint(ckpt: dict) -> SSJMFlow:
-    """The network a checkpoint describes; a mismatch between weights and config is one-line ValueError."""
+    """The network a checkpoint describes, its ``model_config`` bounded (``checked_config``) before the
+    model is built; an out-of-bounds config raises ProjregError, a mismatch between weights and config
+    a one-line ValueError."""
     try:
-        model = SSJMFlow(**ckpt["model_config"])
+        model = SSJMFlow(**checked_config(ckpt["model_config"]))
         model.load_state_dict(ckpt["model"])
     except (TypeError, RuntimeError) as e:  # load_state_dict lists every mismatched tensor on its own line
         lines = [line.strip() for line in str(e).splitlines() if line.strip()]
@@ -228,16 +233,13 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
     # the data first: a bad --data or --val leaves --out untouched
     train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
     val_ds = ShardDataset([Path(p) for p in cfg.val], batched=False) if cfg.val else None
+    if cfg.batch_size > len(train_ds):  # the stream would repeat samples within one batch, without bound
+        raise ProjregError(f"--batch-size {cfg.batch_size} exceeds the {len(train_ds)} samples of --data; lower it")
     out = Path(cfg.out)
     ckpt_dir = out / "checkpoints"
     last_path = ckpt_dir / "last.pt"
-    if rank == 0:
-        try:
-            ckpt_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise ProjregError(f"--out {out}: cannot create ({e.strerror})") from e
-        if not resume and last_path.exists():
-            raise ProjregError(f"--out {out}: already holds a run; add --resume to continue it or pick a new --out")
+    if rank == 0 and not resume and last_path.exists():
+        raise ProjregError(f"--out {out}: already holds a run; add --resume to continue it or pick a new --out")
     if resume and not last_path.exists():
         raise ProjregError(f"--resume: {last_path} does not exist; start without --resume")
 
@@ -271,25 +273,33 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         sched.load_state_dict(ck["scheduler"])
         _set_rng_state(ck["rng"])
         step, best = int(ck["step"]), float(ck["best_epe"])
-    if rank == 0:
-        _write_config(out, cfg, model, resume)
-    log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
-
     sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
     loader = DataLoader(train_ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.workers,
                         pin_memory=device.type == "cuda", drop_last=True)  # fmt: skip
+    batches = iter(loader)
+    batches = itertools.chain([_next_batch(batches)], batches)  # a bad first batch leaves --out untouched
+    if rank == 0:
+        try:
+            ckpt_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ProjregError(f"--out {out}: cannot create ({e.strerror})") from e
+        _write_config(out, cfg, model, resume)
+    log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
     net = torch.nn.parallel.DistributedDataParallel(model) if distributed else model
     if cfg.compile:
         net = torch.compile(net)
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=cfg.amp and device.type == "cuda")
 
     def checkpoint(path: Path) -> None:
+        bad = _non_finite(model, opt)
+        if bad is not None:
+            raise ProjregError(f"non-finite {bad} after step {step} (--lr too high?); stopped without writing "
+                               f"{path.name}, {_last_good(last_path)}")  # fmt: skip
         _atomic_save({"model": model.state_dict(), "model_config": model.config, "optimizer": opt.state_dict(),
                       "scheduler": sched.state_dict(), "rng": _rng_state(), "step": step, "best_epe": best,
                       "train_config": asdict(cfg), "version": __version__}, path)  # fmt: skip
 
     t0, seen, last_loss = time.perf_counter(), 0, float("nan")
-    batches = iter(loader)
     model.train()
     while step < cfg.steps:
         batch = {k: v.to(device, non_blocking=True) for k, v in _next_batch(batches).items()}
@@ -297,7 +307,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
             preds = net(batch["img0"], batch["img1"])
         loss, stats = sequence_loss([p.float() for p in preds], batch["flow"], batch["valid"], gamma=cfg.gamma)
         if not torch.isfinite(loss):
-            raise ProjregError(f"non-finite loss at step {step + 1}; stopped, the last good checkpoint is {last_path}")
+            raise ProjregError(f"non-finite loss at step {step + 1}; stopped, {_last_good(last_path)}")
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
@@ -327,6 +337,25 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         _record_ddp_agreement(model, out, rank, world)
         dist.destroy_process_group()
     return summary
+
+
+def _non_finite(model: torch.nn.Module, opt: torch.optim.Optimizer) -> str | None:
+    """The first weight or optimizer state tensor holding NaN or Inf, by name; None when all are finite."""
+    for name, t in model.state_dict().items():
+        if t.is_floating_point() and not torch.isfinite(t).all():
+            return f"weight {name}"
+    for state in opt.state.values():
+        for name, t in state.items():
+            if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
+                return f"optimizer state {name}"
+    return None
+
+
+def _last_good(last_path: Path) -> str:
+    """Where a stopped run can be resumed from: ``last.pt`` is never written with non-finite weights."""
+    if last_path.exists():
+        return f"the last good checkpoint is {last_path}"
+    return "no checkpoint was written; lower --lr or check the data"
 
 
 def _plain(value, key: str = ""):

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
-from .dataset import Sample
+from .dataset import Sample, plan_hash
 from .shards import MANIFEST, PLAN_FILE, assemble_manifest, library_versions, shard_name, write_json_atomic, write_shard
 from .sources import load_image
 from .structured import PATTERNS_FILE, PatternSet
@@ -115,7 +115,7 @@ def write_captured_dataset(
         "table_version": None,
         "captured": capture,
     }
-    info["config_hash"] = hashlib.sha256(json.dumps(info, sort_keys=True).encode()).hexdigest()
+    info["config_hash"] = plan_hash(info)
     info.update(shard_size=len(samples), num_shards=1, skipped_sources=[])
     plan_path = Path(out) / PLAN_FILE
     try:

@@ -33,6 +33,14 @@ cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our own erro
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
 
 
+def output_path(text: str) -> Path:
+    """The value of an output option; an empty one (an unset shell variable) is refused, where a plain
+    ``Path`` would read it as the current directory and write there."""
+    if not text.strip():
+        raise typer.BadParameter("empty; give a path to write to")
+    return Path(text)
+
+
 def _fail(e: Exception) -> typer.Exit:
     typer.echo(f"projsynth: error: {e}", err=True)
     return typer.Exit(2)
@@ -52,7 +60,7 @@ SPLIT_HELP = "train, val or test (disjoint source images), or all (every image: 
 
 @app.command()
 def gen(
-    out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).")],
+    out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).", parser=output_path)],
     natural: Annotated[Path | None, typer.Option(help="Folder of natural images (recursive).")] = None,
     generated: Annotated[Path | None, typer.Option(help="Folder of generated/illustration images.")] = None,
     pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
@@ -134,7 +142,7 @@ def inspect(
 @app.command()
 def export(
     root: Annotated[Path, typer.Argument(help="Dataset directory.")],
-    out: Annotated[Path, typer.Option(help="Output folder.")],
+    out: Annotated[Path, typer.Option(help="Output folder.", parser=output_path)],
     limit: Annotated[int | None, typer.Option(help="Export only the first N samples.")] = None,
     quiet: Quiet = False,
 ) -> None:

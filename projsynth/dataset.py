@@ -71,7 +71,23 @@ class Plan:
         }
 
     def config_hash(self) -> str:
-        return hashlib.sha256(json.dumps(self.describe(), sort_keys=True).encode()).hexdigest()
+        return plan_hash(self.describe())
+
+
+# The keys of ``Plan.describe()``: what ``config_hash`` covers (a manifest's copy of them must hash to it)
+PLAN_KEYS = ("format_version", "generator", "size", "seed", "split", "pairs", "transforms", "blend",
+             "table_version", "table_digest", "sources")  # fmt: skip
+
+
+# A captured dataset (projsynth.captured) records its capture instead of a generation config.
+CAPTURED_PLAN_KEYS = ("format_version", "generator", "size", "camera_size", "split", "pairs", "blend", "captured")
+
+
+def plan_hash(described: dict) -> str:
+    """``config_hash``: sha256 of the ``PLAN_KEYS`` (``CAPTURED_PLAN_KEYS`` for captured data) of
+    ``described`` as canonical JSON."""
+    keys = CAPTURED_PLAN_KEYS if "captured" in described else PLAN_KEYS
+    return hashlib.sha256(json.dumps({k: described[k] for k in keys}, sort_keys=True).encode()).hexdigest()
 
 
 def parse_size(text: str, option: str = "--size") -> tuple[int, int]:
@@ -102,8 +118,8 @@ def resolve_plan(
         raise ProjsynthError(f"--split: {split!r} is not one of {', '.join(SPLITS)}")
     if blend not in BLENDS:
         raise ProjsynthError(f"--blend: {blend!r} is not one of {', '.join(BLENDS)}")
-    if seed < 0:
-        raise ProjsynthError(f"--seed: must be >= 0, got {seed}")
+    if not 0 <= seed < 2**64:  # a shard records it as an unsigned 64-bit attribute
+        raise ProjsynthError(f"--seed: must be in 0..{2**64 - 1}, got {seed}")
     if pairs is not None and pairs < 1:
         raise ProjsynthError(f"--pairs: must be >= 1, got {pairs}")
     if (natural is None) != (generated is None):

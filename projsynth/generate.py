@@ -2,12 +2,15 @@
 
 Work is split by shard: each worker process renders a whole shard and writes it atomically, so
 nothing crosses process boundaries but shard indices, and a killed run leaves only ``*.tmp`` files,
-which the next run removes. Finished shards (same config hash) are skipped.
+which the next run removes. Finished shards (same config hash) are skipped. A run holds a lock on
+its shards (``.gen.lock``), so two runs never write one shard.
 """
 
 from __future__ import annotations
 
+import fcntl
 import multiprocessing as mp
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -29,6 +32,8 @@ from .shards import (
     write_json_atomic,
     write_shard,
 )
+
+LOCK_FILE = ".gen.lock"
 
 
 @dataclass(frozen=True)
@@ -65,7 +70,12 @@ def generate(
 ) -> GenResult:
     """Write the shards of ``plan`` under ``out`` (a subset with ``shards``) and, when all exist,
     the manifest. ``progress_total(n)`` is called once with the samples of the selected shards,
-    ``progress(n)`` with the number of samples each finished (or already done) shard adds."""
+    ``progress(n)`` with the number of samples each finished (or already done) shard adds.
+
+    Raises:
+        ProjsynthError: bad options, an ``out`` holding another dataset, another ``gen`` writing some
+            of the same shards (:func:`claim_shards`), or a shard that cannot be written.
+    """
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
     if workers < 1:
@@ -75,23 +85,24 @@ def generate(
     info = {**plan.describe(), "config_hash": plan.config_hash(), "shard_size": shard_size,
             "num_shards": num_shards, "skipped_sources": list(plan.skipped)}  # fmt: skip
     _prepare_dir(out, info)
-    todo, done = [], []
-    for j in todo_range:
-        (out / (shard_name(j) + ".tmp")).unlink(missing_ok=True)  # left by an interrupted run
-        (done if shard_is_complete(out / shard_name(j), info["config_hash"]) else todo).append(j)
-    if progress_total:
-        progress_total(sum(_shard_count(plan, shard_size, j) for j in todo_range))
-    if progress:
-        progress(sum(_shard_count(plan, shard_size, j) for j in done))
-    jobs = [(plan, out, shard_size, j, info["config_hash"]) for j in todo]
-    if workers == 1 or len(jobs) <= 1:
-        with single_threaded():
-            for job in jobs:
-                _report(progress, _write_one(job))
-    else:
-        with mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=_init_worker) as pool:
-            for n in pool.imap_unordered(_write_one, jobs):
-                _report(progress, n)
+    with claim_shards(out, todo_range):
+        todo, done = [], []
+        for j in todo_range:
+            (out / (shard_name(j) + ".tmp")).unlink(missing_ok=True)  # left by an interrupted run
+            (done if shard_is_complete(out / shard_name(j), info["config_hash"]) else todo).append(j)
+        if progress_total:
+            progress_total(sum(_shard_count(plan, shard_size, j) for j in todo_range))
+        if progress:
+            progress(sum(_shard_count(plan, shard_size, j) for j in done))
+        jobs = [(plan, out, shard_size, j, info["config_hash"]) for j in todo]
+        if workers == 1 or len(jobs) <= 1:
+            with single_threaded():
+                for job in jobs:
+                    _report(progress, _write_one(job))
+        else:
+            with mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=_init_worker) as pool:
+                for n in pool.imap_unordered(_write_one, jobs):
+                    _report(progress, n)
     manifest = None
     if all(shard_is_complete(out / shard_name(j), info["config_hash"]) for j in range(num_shards)):
         manifest = assemble_manifest(out, info, num_shards, shard_size)
@@ -124,6 +135,9 @@ def _prepare_dir(out: Path, info: dict) -> None:
         if old.get("generator", info["generator"]) != info["generator"]:
             raise ProjsynthError(f"--out {out}: holds a dataset made by {old['generator']}, whose samples differ from "
                                  f"{info['generator']}'s; use a new --out, or delete it to regenerate")  # fmt: skip
+        if old.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
+            raise ProjsynthError(f"--out {out}: holds a format {old['format_version']} dataset, this projsynth "
+                                 f"writes format {FORMAT_VERSION}; use a new --out (the old one stays readable)")
         if old.get("config_hash") != info["config_hash"] or old.get("shard_size") != info["shard_size"]:
             raise ProjsynthError(f"--out {out}: holds a dataset made with other options (see {plan_path}); "
                                  "use a new --out, or the same options to resume")  # fmt: skip
@@ -131,6 +145,31 @@ def _prepare_dir(out: Path, info: dict) -> None:
     if (out / MANIFEST).exists() or any(out.glob("shard-*.h5")):
         raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
     write_json_atomic(plan_path, info)
+
+
+@contextmanager
+def claim_shards(out: Path, shards: range) -> Iterator[None]:
+    """Hold ``shards`` of the dataset in ``out`` for this ``gen`` while it writes them, or refuse.
+
+    One byte of ``out/.gen.lock`` per shard index, taken with a POSIX record lock (``fcntl.lockf``,
+    released when the process ends, however it ends): a second ``gen`` on overlapping shards stops
+    with a message saying so, while the disjoint ``--shards`` ranges of a job array run side by side.
+    """
+    path = out / LOCK_FILE
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise ProjsynthError(f"--out {out}: cannot create {path.name} ({e.strerror}); choose a writable path") from e
+    try:
+        try:
+            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB, len(shards), shards.start, os.SEEK_SET)
+        except OSError as e:  # EAGAIN or EACCES: held by another process
+            raise ProjsynthError(f"--out {out}: another `projsynth gen` is writing shards there (some of "
+                                 f"{shards.start}-{shards.stop - 1}; lock {path}); wait for it to finish, or give "
+                                 "each run its own --shards range") from e  # fmt: skip
+        yield
+    finally:
+        os.close(fd)
 
 
 @contextmanager

@@ -11,6 +11,7 @@ Note that OpenCV itself may write ``[ WARN ]`` lines to stderr while decoding a 
 
 import hashlib
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,7 +79,8 @@ def load_image(path: Path) -> np.ndarray:
     Unicode paths work (the bytes are read by numpy and decoded by OpenCV).
 
     Raises:
-        ProjsynthError: the file is missing, empty, truncated, not an image or of an unsupported type.
+        ProjsynthError: the file is missing, not a regular file (a FIFO, a device), empty, truncated, not
+            an image or of an unsupported type.
     """
     image = read_image(path)
     if image.dtype == np.uint16:
@@ -114,6 +116,8 @@ def read_image(path: Path) -> np.ndarray:
         ProjsynthError: the file is missing, empty, truncated, not an image or of an unsupported type.
     """
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # reading a FIFO or a device would block or never end
+            raise ProjsynthError(f"{path}: cannot read image (not a regular file); remove it or replace it by a file")
         data = np.fromfile(path, np.uint8)
     except OSError as err:
         reason = err.strerror or str(err)

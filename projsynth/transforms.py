@@ -170,32 +170,46 @@ def load_table(path: Path | None) -> TransformTable:
     return TransformTable(str(doc.get("version", Path(path).stem)), tuple(configs))
 
 
-def _parse_row(path: Path, i: int, row: dict) -> TransformConfig:
+# The fields of a [[transform]] entry: (required, type, what it must be)
+_ROW_FIELDS = {
+    "id": (True, int, "an integer"), "family": (True, str, "a string"),
+    "geometry": (True, dict, "a table of ranges ([transform.geometry])"),
+    "photometry": (True, dict, "a table of ranges ([transform.photometry])"),
+    "name": (False, str, "a string"), "severity": (False, int, "an integer"), "condition": (False, str, "a string"),
+}  # fmt: skip
+
+
+def _parse_row(path: Path, i: int, row: object) -> TransformConfig:
+    """One ``[[transform]]`` entry; every error names the file, the entry (``#i``, 0-based) and the field."""
     where = f"{path}: transform #{i}"
-    try:
-        family, cond = row["family"], row.get("condition", "custom")
-        geometry = {k: _range(where, k, v) for k, v in row["geometry"].items()}
-        photometry = {k: _range(where, k, v) for k, v in row["photometry"].items()}
-        cfg = TransformConfig(int(row["id"]), str(row.get("name", f"t{row['id']}")), family,
-                              int(row.get("severity", 0)), cond, geometry, photometry)
-    except KeyError as e:
-        raise ProjsynthError(f"{where}: missing key {e}; each entry needs id, family, geometry, photometry") from e
-    except (TypeError, ValueError, AttributeError) as e:
-        raise ProjsynthError(f"{where}: {e}") from e
+    if not isinstance(row, dict):
+        raise ProjsynthError(f"{where}: expected a [[transform]] table, got {row!r:.40}")
+    missing = [k for k, (required, _, _) in _ROW_FIELDS.items() if required and k not in row]
+    if missing:
+        raise ProjsynthError(f"{where}: missing key(s) {', '.join(missing)}; each entry needs id, family, "
+                             "geometry, photometry")  # fmt: skip
+    for key, (_, kind, what) in _ROW_FIELDS.items():
+        if key in row and (not isinstance(row[key], kind) or isinstance(row[key], bool)):
+            raise ProjsynthError(f"{where}: {key} must be {what}, got {row[key]!r:.40}")
+    family = row["family"]
     if family not in FAMILIES:
         raise ProjsynthError(f"{where}: unknown family {family!r}; choose from {', '.join(FAMILIES)}")
+    geometry = {k: _range(f"{where} geometry", k, v) for k, v in row["geometry"].items()}
+    photometry = {k: _range(f"{where} photometry", k, v) for k, v in row["photometry"].items()}
     missing = [k for k in _GEOMETRY_KEYS + _FAMILY_KEYS[family] if k not in geometry]
     missing += [k for k in _PHOTOMETRY_KEYS if k not in photometry]
     if missing:
         raise ProjsynthError(f"{where} ({family}): missing ranges {', '.join(missing)}")
-    return cfg
+    return TransformConfig(row["id"], row.get("name", f"t{row['id']}"), family, row.get("severity", 0),
+                           row.get("condition", "custom"), geometry, photometry)  # fmt: skip
 
 
 def _range(where: str, key: str, value: object) -> tuple[float, float]:
     if key not in _BOUNDS:
         raise ProjsynthError(f"{where}: unknown parameter {key!r}")
-    if not (isinstance(value, list) and len(value) == 2):
-        raise ProjsynthError(f"{where}: {key} must be a [low, high] pair, got {value!r}")
+    numbers = isinstance(value, list) and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    if not (numbers and len(value) == 2):
+        raise ProjsynthError(f"{where}: {key} must be a [low, high] pair of numbers, got {value!r:.40}")
     lo, hi = float(value[0]), float(value[1])
     blo, bhi = _BOUNDS[key]
     if not (blo <= lo <= hi <= bhi):

@@ -11,7 +11,8 @@ import numpy as np
 from . import ProjsynthError
 from .dataset import Sample
 from .flowio import decode_flow_exr
-from .shards import MANIFEST, ShardReader, file_sha256, load_manifest, open_shard, shard_name
+from .manifest import manifest_problems
+from .shards import MANIFEST, ShardReader, file_sha256, open_shard, read_json, shard_name
 
 BUCKETS = ("s0-10", "s10-40", "s40+")
 
@@ -43,8 +44,9 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
         One line per problem, each naming the file (empty when the dataset is intact).
     """
     root = Path(root)
-    manifest = load_manifest(root)
-    problems = [f"{root / MANIFEST}: {p}; re-run `projsynth merge {root}`" for p in _check_manifest(manifest)]
+    path = root / MANIFEST
+    manifest = read_json(path, "manifest")
+    problems = [f"{path}: {p}; re-run `projsynth merge {root}`" for p in manifest_problems(manifest, path)]
     if problems:
         return problems  # the shard entries cannot be trusted to say which samples each file should hold
     h, w = manifest["size"]
@@ -54,44 +56,19 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
         path = root / entry["file"]
         if entry["file"] != shard_name(entry["index"]):
             problems.append(f"{path}: manifest names shard {entry['index']} {entry['file']!r}")
-        if not path.exists():
-            problems.append(f"{path}: missing; regenerate it with `projsynth gen ... --shards {entry['index']}`")
+        if not path.is_file():
+            what = "not a file" if path.exists() else "missing"
+            problems.append(f"{path}: {what}; regenerate it with `projsynth gen ... --shards {entry['index']}`")
             continue
-        if file_sha256(path) != entry["sha256"]:
-            problems.append(f"{path}: sha256 differs from the manifest (corrupt or modified); regenerate it")
         try:
+            if file_sha256(path) != entry["sha256"]:
+                problems.append(f"{path}: sha256 differs from the manifest (corrupt or modified); regenerate it")
             problems += [f"{path}: {p}" for p in _check_shard(path, manifest, entry, expected, (h, w), camera)]
         except (OSError, KeyError, ValueError, ProjsynthError) as e:
             problems.append(f"{path}: unreadable ({e}); regenerate it")
         if progress:
             progress(entry["count"])
     return problems
-
-
-def _check_manifest(m: dict) -> list[str]:
-    """The manifest's own arithmetic: shards 0..N-1 in order, each full but the last, tiling the samples."""
-    size, shards = m["shard_size"], m["shards"]
-    if not isinstance(size, int) or size < 1 or not isinstance(shards, list) or not isinstance(m["samples"], list):
-        return ["shard_size, shards or samples is malformed"]
-    out = []
-    if "num_shards" in m and m["num_shards"] != len(shards):
-        out.append(f"lists {len(shards)} shards, num_shards says {m['num_shards']}")
-    pairs, transforms = m.get("pairs"), m.get("transforms")
-    expected_total = pairs * 2 * len(transforms) if isinstance(pairs, int) and isinstance(transforms, list) else None
-    first = 0
-    for j, e in enumerate(shards):
-        count = e.get("count") if isinstance(e, dict) else None
-        if not isinstance(count, int) or e.get("index") != j or e.get("first_sample") != first:
-            out.append(f"shard entry {j} is not shard {j} starting at sample {first}")
-            break
-        if not 1 <= count <= size or (count < size and j < len(shards) - 1):
-            out.append(f"shard {j} holds {count} samples; every shard but the last holds {size}")
-        first += count
-    for what, n in (("shard counts sum to", first), ("samples list has", len(m["samples"])),
-                    ("plan (pairs x 2 x transforms) makes", expected_total)):  # fmt: skip
-        if n is not None and n != m["num_samples"]:
-            out.append(f"num_samples is {m['num_samples']} but the {what} {n}")
-    return out
 
 
 def _check_shard(

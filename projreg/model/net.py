@@ -55,6 +55,46 @@ MODEL_CONFIGS: dict[str, dict[str, Any]] = {
     },
 }
 
+# Bounds on a checkpoint's ``model_config`` (SSJMFlow's arguments), checked before a model is built: well
+# above both configurations, low enough that a file from elsewhere cannot make building the model
+# allocate without limit (``attn_splits`` 10**6 asked predict for 1.5 PB, ``feature_channels`` 65536 17 GB).
+CONFIG_BOUNDS: dict[str, tuple[float, float]] = {
+    "feature_channels": (4, 512), "backbone_channels": (1, 512), "num_transformer_layers": (0, 12),
+    "ffn_dim_expansion": (1, 8), "attn_splits": (1, 8), "ssjm_lambda": (1e-12, 1.0), "refine_radius": (1, 8),
+    "upsampler_channels": (1, 512),
+}  # fmt: skip
+CONFIG_FLAGS = ("use_ssjm", "refine")
+
+
+def checked_config(config: object) -> dict[str, Any]:
+    """``config`` when it holds only SSJMFlow arguments within ``CONFIG_BOUNDS`` (integers, but for
+    ``ssjm_lambda``; ``backbone_channels`` three of them) and booleans for ``CONFIG_FLAGS``.
+
+    Raises:
+        ProjregError: naming the first field that is unknown, of the wrong type or out of bounds.
+    """
+    if not isinstance(config, dict):
+        raise ProjregError(f"model_config is a {type(config).__name__}, expected a dict of SSJMFlow arguments")
+    for key, value in config.items():
+        if key in CONFIG_FLAGS:
+            if not isinstance(value, bool):
+                raise ProjregError(f"model_config {key} is {value!r:.40}, expected true or false")
+            continue
+        if key not in CONFIG_BOUNDS:
+            raise ProjregError(f"model_config {key!s:.40} is not an argument of SSJMFlow")
+        lo, hi = CONFIG_BOUNDS[key]
+        triple = key == "backbone_channels"
+        values = value if triple and isinstance(value, list | tuple) and len(value) == 3 else [value]
+        if triple and len(values) != 3 or not all(_number_within(key, v, lo, hi) for v in values):
+            what = "three integers" if triple else "a number" if key == "ssjm_lambda" else "an integer"
+            raise ProjregError(f"model_config {key} is {value!r:.40}, expected {what} in {lo:g}..{hi:g}")
+    return config
+
+
+def _number_within(key: str, v: object, lo: float, hi: float) -> bool:
+    kinds = (int, float) if key == "ssjm_lambda" else int
+    return isinstance(v, kinds) and not isinstance(v, bool) and lo <= v <= hi  # NaN fails the comparison
+
 
 class SSJMFlow(nn.Module):
     """Global-matching optical flow with Saliency-Statistics Joint Modulation of the features.

@@ -1,6 +1,6 @@
 import numpy as np
 
-from projsynth.dataset import make_sample, parse_size, resolve_plan, sample_key
+from projsynth.dataset import PLAN_KEYS, make_sample, parse_size, plan_hash, resolve_plan, sample_key
 
 
 def _plan(**kw):
@@ -55,3 +55,10 @@ def test_default_table_covers_every_flow_bucket_in_every_family():
     assert (total / total.sum() > 0.18).all(), total / total.sum()  # measured 0.25 / 0.52 / 0.23
     for family, c in counts.items():
         assert (c / c.sum() > 0.12).all(), (family, c / c.sum())  # measured >= 0.17 in each family
+
+
+def test_the_plan_keys_are_what_describe_records():
+    """``PLAN_KEYS`` is what ``config_hash`` covers and what the manifest check re-hashes."""
+    plan = resolve_plan(size=(32, 32), seed=0, split="train", pairs=1, transforms="0", blend="paper")
+    assert set(plan.describe()) == set(PLAN_KEYS)
+    assert plan_hash(plan.describe()) == plan.config_hash()

@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import time
+import zlib
 from pathlib import Path
 
 import cv2
@@ -88,7 +89,7 @@ def _only_complete_shards(root: Path) -> list[str]:
     for p in sorted(root.iterdir()):
         if p.name.endswith(".tmp"):
             continue
-        assert p.name == "dataset.json" or (p.name.startswith("shard-") and p.suffix == ".h5"), p.name
+        assert p.name in ("dataset.json", ".gen.lock") or (p.name.startswith("shard-") and p.suffix == ".h5"), p.name
         if p.suffix != ".h5":
             continue
         with h5py.File(p, "r") as f:  # raises if the file is partial
@@ -205,26 +206,43 @@ def _enospc(*_args, **_kwargs):
 
 
 def _fail_at_open(monkeypatch):
-    real = h5py.File
+    real = open
 
-    def file(name, mode="r", *args, **kwargs):
-        if mode == "w":
+    def fake_open(name, mode="r", *args, **kwargs):
+        if str(name).endswith(".h5.tmp"):
             _enospc()
         return real(name, mode, *args, **kwargs)
 
-    monkeypatch.setattr(shards.h5py, "File", file)
+    monkeypatch.setattr(shards, "open", fake_open, raising=False)
 
 
 def _fail_mid_write(monkeypatch):
-    real, calls = shards.encode_flow_exr, []
+    """Half the shard's bytes reach the .tmp file, then the disk is full."""
+    real = open
 
-    def encode(*args, **kwargs):  # the second sample of the shard: the .tmp file is half written
-        calls.append(1)
-        if len(calls) == 2:
+    class HalfWriter:
+        def __init__(self, fh):
+            self.fh = fh
+
+        def write(self, data):
+            self.fh.write(data[: len(data) // 2])
+            self.fh.flush()
             _enospc()
-        return real(*args, **kwargs)
 
-    monkeypatch.setattr(shards, "encode_flow_exr", encode)
+        def __getattr__(self, name):
+            return getattr(self.fh, name)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+    def fake_open(name, mode="r", *args, **kwargs):
+        fh = real(name, mode, *args, **kwargs)
+        return HalfWriter(fh) if str(name).endswith(".h5.tmp") else fh
+
+    monkeypatch.setattr(shards, "open", fake_open, raising=False)
 
 
 def _fail_at_rename(monkeypatch):
@@ -250,7 +268,7 @@ def test_full_disk_leaves_no_shard_and_resumes(inject, monkeypatch, tmp_path):
             generate(plan, out, shard_size=2, workers=1)
     message = str(info.value)
     assert "no space left" in message and "shard-00000.h5" in message and "\n" not in message
-    assert sorted(p.name for p in out.iterdir()) == ["dataset.json"]  # no shard, no .tmp
+    assert sorted(p.name for p in out.iterdir()) == [".gen.lock", "dataset.json"]  # no shard, no .tmp
 
     result = generate(plan, out, shard_size=2, workers=1)  # space freed: the same call resumes
     assert (result.written, result.skipped, result.num_shards) == ([0, 1, 2, 3], [], 4)
@@ -304,8 +322,10 @@ def test_reader_decodes_on_a_thread_names_a_bad_flow_and_survives_a_fork(planar_
 
     copy = tmp_path / "ds"
     shutil.copytree(planar_ds, copy)
+    bad = b"not an exr file" * 10
     with h5py.File(copy / "shard-00000.h5", "r+") as f:
-        f["flow_exr"][1] = np.frombuffer(b"not an exr file" * 10, np.uint8)
+        f["flow_exr"][1] = np.frombuffer(bad, np.uint8)
+        f["crc32"][1, 0] = zlib.crc32(bad)  # past the checksum: the decoder is the one to notice
     reader = ShardReader(copy)
     try:
         first = reader.read(0)
