@@ -41,6 +41,7 @@ import numpy as np
 
 from . import ProjregError
 from .baselines import homography_flow, proper_homography, to_gray
+from .confidence import Prediction
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
 
@@ -137,6 +138,10 @@ class GeometricRefiner:
         assert best is not None  # the identity always exists
         name, kind = best[0].split("/")
         return best[1], RefineInfo(name, kind, scores)
+
+    def predict(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> Prediction:
+        """:meth:`refine` as a :class:`~projreg.confidence.Prediction`."""
+        return Prediction(self.refine(projected, captured, flow)[0])
 
     def hypothesis(
         self, gray0: np.ndarray, gray1: np.ndarray, H: np.ndarray, weight: np.ndarray, step: int
