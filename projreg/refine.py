@@ -160,7 +160,9 @@ class GeometricRefiner:
         step = fit_step(h, w, cfg.fit_points)
         textured = evidence >= 0.5
         support = near(textured, cfg.support_margin * max(h, w))
-        fit = fit_homography(flow, step, cfg.ransac_px, textured, cfg.max_area_ratio, cfg.min_hull)
+        # the network's own flow is fitted everywhere: it carries the network's hypothesis into flat
+        # regions too, and the refit below keeps to the textured pixels
+        fit = fit_homography(flow, step, cfg.ransac_px, None, cfg.max_area_ratio, cfg.min_hull)
         hypotheses = {"network": (None if fit is None else fit[0], flow), "identity": (np.eye(3), np.zeros_like(flow))}
         cands, scores = {}, {}
         for kind, (gray0, gray1) in images.items():
@@ -173,6 +175,12 @@ class GeometricRefiner:
                 scores[key] = alignment_score(*normalised, cands[key], cfg.ncc_sigma, evidence)
         best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
         conf = self.confidence(normalised, cands, scores, best, evidence)
+        net = [k for k in scores if k.startswith("network/")]
+        if (conf >= CONFIDENT).mean() < cfg.min_evidence and net and best not in net:
+            # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
+            # so the answer stays with the network's hypothesis rather than the identity's
+            best = max(net, key=lambda k: scores[k])
+            conf = self.confidence(normalised, cands, scores, best, evidence)
         claimed = conf >= CONFIDENT
         name, kind = best.split("/")
         why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
