@@ -74,7 +74,7 @@ hard-bench: setup
 	$(PY) bench/hard_sources.py --out build/hard
 	$(BIN)/projsynth gen --out build/hard-test --natural build/hard/natural --generated build/hard/generated \
 		--split all --seed 11 --blend physical --transforms $(SPREAD32) --workers 2 --quiet
-	$(BIN)/projreg bench --data build/hard-test --baselines $(BASELINES) --refine both --limit 96 \
+	$(BIN)/projreg bench --data build/hard-test --baselines $(BASELINES) --refine both --limit 48 \
 		--json build/hard-bench.json --markdown build/hard-bench.md --quiet
 
 clean:
