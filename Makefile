@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO ?= demo
 
-.PHONY: clean-kernels setup test lint demo bench reference-model test-bench real-bench real-protocol bench-decode clean
+.PHONY: clean-kernels setup test lint demo bench reference-model test-bench real-bench hard-bench real-protocol bench-decode clean
 
 setup: $(VENV)/.installed
 
@@ -67,6 +67,15 @@ real-bench: setup
 		--split all --seed 5 --transforms $(SPREAD32) --workers 2 --quiet
 	$(BIN)/projreg bench --data build/real-test --baselines $(BASELINES) --refine both --json build/real-bench.json \
 		--markdown build/real-bench.md --quiet
+
+# ... and on adversarial pictures (bench/hard_sources.py): content on part of the frame, near-uniform,
+# repetitive and striped content, rendered with the physical model (non-linear response, daylight)
+hard-bench: setup
+	$(PY) bench/hard_sources.py --out build/hard
+	$(BIN)/projsynth gen --out build/hard-test --natural build/hard/natural --generated build/hard/generated \
+		--split all --seed 11 --blend physical --transforms $(SPREAD32) --workers 2 --quiet
+	$(BIN)/projreg bench --data build/hard-test --baselines $(BASELINES) --refine both --limit 48 \
+		--json build/hard-bench.json --markdown build/hard-bench.md --quiet
 
 # The paper's real-world protocol (Table 4) on the virtual rig: a concave surface with a heart-like textured
 # interference and a convex one with a brightened centre; 11 dot patterns -> 400-point truth; the bench on

@@ -44,10 +44,11 @@ def stages(refiner: GeometricRefiner, variants: list[GeometricRefiner], sift, pr
     step = fit_step(h, w, cfg.fit_points)
     gray0, gray1 = (normalize_contrast(to_gray(img), cfg.contrast_sigma) for img in (projected, captured))
     weight = texture_weight(gray0)
-    H = fit_homography(net, step, cfg.ransac_px)
-    H = np.eye(3) if H is None else H
-    base, residual, spline = refiner.hypothesis(gray0, gray1, H, weight, step)
-    identity = refiner.hypothesis(gray0, gray1, np.eye(3), weight, step)[2]
+    everywhere = np.ones((h, w), bool)  # the stages without the guards: every pixel counts as evidence
+    fit = fit_homography(net, step, cfg.ransac_px)
+    H = np.eye(3) if fit is None else fit[0]
+    base, residual, spline = refiner.hypothesis(gray0, gray1, H, weight, step, everywhere, everywhere, net)
+    identity = refiner.hypothesis(gray0, gray1, np.eye(3), weight, step, everywhere, everywhere, 0 * net)[2]
     return [net, homography_flow(H, h, w), base, compose(base, residual), spline, identity,
             *(v.refine(projected, captured, net)[0] for v in variants), refiner.refine(projected, captured, net)[0],
             sift.predict(projected, captured)]  # fmt: skip

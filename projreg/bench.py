@@ -1,9 +1,10 @@
 """``projreg bench``: models and classical baselines on the same shards, in one run, one report.
 
 Every method sees every evaluated sample, ``predict(projected, captured) -> flow`` (a captured image
-of another size is resized to the projected one and the flow scaled back, :mod:`projreg.frames`); metrics are the
-pooled ones of :class:`~projreg.metrics.EPEAccumulator` (EPE, buckets, outlier rates, per-image mean),
-overall and per group of samples:
+of another size is resized to the projected one and the flow scaled back, :mod:`projreg.frames`); metrics
+are the pooled ones of :class:`~projreg.metrics.EPEAccumulator` (EPE, buckets, outlier rates, per-image
+mean, the per-pair distribution with the worst pair's id, and the EPE on the pixels a method claims with
+the share it claims), overall and per group of samples:
 
 * ``role``: ``natural_on_generated`` / ``generated_on_natural`` (``params["role"]``);
 * ``family``: geometry family of the transform (``params["transform"]["family"]``);
@@ -12,7 +13,11 @@ overall and per group of samples:
 
 Models run through the geometric refinement of :mod:`projreg.refine` unless ``refine="off"``;
 ``refine="both"`` reports each model twice, refined under its name and the raw network as
-``NAME-raw``. Groups appear in the order of their first sample. ``ms_per_pair`` is the median
+``NAME-raw``. A method may return a :class:`~projreg.confidence.Prediction` (flow, claimed pixels,
+registered or not) instead of a bare flow, which claims every pixel; ``sift-ransac`` claims none when
+it finds no homography. Every result lists its ``pairs`` (per-pair figures) and names the pairs it
+reported as not registered; ``versus_baselines`` compares each model with the best baseline pair by
+pair (:func:`versus_baselines`). Groups appear in the order of their first sample. ``ms_per_pair`` is the median
 wall-clock time of one ``predict`` call over the samples, after one untimed warm-up call on the
 first sample.
 The report schema is documented in docs/projreg-cli.md.
@@ -40,6 +45,7 @@ from projsynth.shards import ShardReader
 from . import ProjregError
 from .baselines import make_baseline
 from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_header, sheet_row
+from .confidence import Prediction, as_prediction
 from .evaluate import predict_flow, sample_indices
 from .frames import register_any_size
 from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
@@ -52,11 +58,13 @@ GROUPS = ("role", "family", "condition", "pair_role")
 TABLE_METRICS = (("EPE", "epe"), *((b, b) for b in BUCKETS))
 REFINE_MODES = ("on", "off", "both")
 SHEET_ROWS = 4
+RATIO_LIMIT = 1.5  # issue 16: per pair, a model's EPE on its claimed pixels <= 1.5x the best baseline's
 
 
 @dataclass(frozen=True)
 class Method:
-    """A named predictor: ``predict(projected, captured)`` -> float32 flow ``(H, W, 2)``.
+    """A named predictor: ``predict(projected, captured)`` -> float32 flow ``(H, W, 2)`` or a
+    :class:`~projreg.confidence.Prediction`.
 
     ``kind`` is ``"model"`` (gated by ``--fail-above``) or ``"baseline"`` (never gated); ``refined``
     says whether the geometric refinement (``projreg.refine``) follows the network.
@@ -64,7 +72,7 @@ class Method:
 
     name: str
     kind: str
-    predict: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    predict: Callable[[np.ndarray, np.ndarray], np.ndarray | Prediction]
     refined: bool = False
 
 
@@ -83,8 +91,8 @@ def model_methods(path: Path, device: torch.device, name: str | None = None, ref
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
         return predict_flow(model, img0, img1, device)
 
-    def refined(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
-        return refiner.refine(img0, img1, raw(img0, img1))[0]
+    def refined(img0: np.ndarray, img1: np.ndarray) -> Prediction:
+        return refiner.predict(img0, img1, raw(img0, img1))
 
     if refine == "off":
         return [Method(name, "model", raw)]
@@ -93,8 +101,21 @@ def model_methods(path: Path, device: torch.device, name: str | None = None, ref
 
 
 def baseline_method(name: str, equalize: bool = False) -> Method:
-    """A classical baseline by registry name (``projreg.baselines.BASELINES``)."""
-    return Method(name, "baseline", make_baseline(name, equalize).predict)
+    """A classical baseline by registry name (``projreg.baselines.BASELINES``).
+
+    Baselines claim every pixel, except ``sift-ransac`` when it found no homography (its zero flow
+    then says "no answer"; ``last_status`` is not ``"ok"``): it claims none and is not registered.
+    """
+    baseline = make_baseline(name, equalize)
+
+    def predict(img0: np.ndarray, img1: np.ndarray) -> Prediction:
+        flow = baseline.predict(img0, img1)
+        status = getattr(baseline, "last_status", "ok")
+        if status == "ok":
+            return Prediction(flow)
+        return Prediction(flow, np.zeros(flow.shape[:2], bool), False, status)
+
+    return Method(name, "baseline", predict)
 
 
 def sample_groups(params: dict) -> dict[str, str]:
@@ -115,20 +136,26 @@ class _Scores:
         self.groups: dict[str, dict[str, EPEAccumulator]] = {g: {} for g in GROUPS}
         self.ms: list[float] = []
         self.comp: list[dict[str, float | None]] = []  # per sample, with --compensation
+        self.pairs: list[dict] = []
 
-    def add(self, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, groups: dict[str, str]) -> None:
+    def add(self, pred: Prediction, gt: np.ndarray, valid: np.ndarray, groups: dict[str, str], sid: str) -> None:
         one = EPEAccumulator()
-        one.add(pred, gt, valid)
+        one.add(pred.flow, gt, valid, pred.claimed, sid)
         self.all.merge(one)
         for g, key in groups.items():
             self.groups[g].setdefault(key, EPEAccumulator()).merge(one)
+        r = one.result()
+        self.pairs.append({"id": sid, "epe": r["epe"], "epe_claimed": r["epe_claimed"], "claimed": r["claimed"],
+                           "registered": pred.registered})  # fmt: skip
 
     def result(self, method: Method) -> dict:
         out = {"name": method.name, "kind": method.kind, "refined": method.refined, **self.all.result()}
         out["ms_per_pair"] = float(np.median(self.ms)) if self.ms else None
         if self.comp:
             out.update(compensation_means(self.comp))
+        out["unregistered"] = [p["id"] for p in self.pairs if not p["registered"]]
         out["groups"] = {g: {k: acc.result() for k, acc in accs.items()} for g, accs in self.groups.items()}
+        out["pairs"] = self.pairs
         return out
 
 
@@ -234,15 +261,18 @@ def run_bench(
         for done, k in enumerate(indices, start=1):
             s = first if done == 1 else _read(reader, k)
             groups = sample_groups(s["params"])
-            preds = {}
+            sid = str(s["params"].get("sample_id", k))
+            flows = {}
             for m, sc in zip(methods, scores, strict=True):
                 t0 = time.perf_counter()
-                pred = register_any_size(m.predict, s["projected"], s["captured"])
+                pred = as_prediction(register_any_size(m.predict, s["projected"], s["captured"]))
                 sc.ms.append(1000 * (time.perf_counter() - t0))
-                sc.add(pred, s["flow"], s["valid"], groups)
-                preds[m.name] = pred
+                sc.add(pred, s["flow"], s["valid"], groups, sid)
+                # the compensation honours what a method claims: unclaimed pixels get no content
+                flows[m.name] = pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow,
+                                                                                np.nan)  # fmt: skip
             if loop is not None:
-                comp = loop.score(k, s, preds)
+                comp = loop.score(k, s, flows)
                 uncompensated.comp.append(comp.pop(UNCOMPENSATED))
                 for m, sc in zip(methods, scores, strict=True):
                     sc.comp.append(comp[m.name])
@@ -262,7 +292,50 @@ def run_bench(
         row = uncompensated.result(Method(UNCOMPENSATED, "none", lambda a, b: a))
         results.append({**row, **{k: None for k in KEYS if k not in ("pixels", "images")}, "ms_per_pair": None})
     return {"dataset": dataset, "reference_model": None if reference is None else str(reference),
-            "results": results}
+            "results": results, "versus_baselines": versus_baselines(results)}  # fmt: skip
+
+
+def versus_baselines(results: Sequence[dict], ratio_limit: float = RATIO_LIMIT) -> dict[str, dict]:
+    """Each model against the best baseline *of each pair* (issue 16's targets), keyed by model name.
+
+    Per pair, the best baseline is the one with the lowest EPE on the pixels it claims (a baseline
+    that claims nothing on a pair, such as a failed ``sift-ransac``, does not compete there). A
+    model's ratio on a pair is its EPE on the pixels it claims over that best EPE; pairs where it
+    claims nothing (not registered) have no ratio. Returns, per model: ``baselines`` compared,
+    ``pairs`` (with a baseline answer), ``rated`` (pairs with a ratio), ``worst_ratio`` and
+    ``worst_ratio_id``, ``within`` (share of rated pairs with ratio <= ``ratio_limit``), ``claimed_mean``
+    (mean per-pair share of valid pixels claimed, 0 for pairs claiming nothing), ``mean_pair_epe``
+    (mean per-pair EPE on all valid pixels, claimed or not) and ``best_baseline`` /
+    ``best_baseline_mean_pair_epe`` (the baseline with the lowest such mean). Empty without baselines.
+    """
+    base = [r for r in results if r["kind"] == "baseline"]
+    if not base:
+        return {}
+    means = {r["name"]: _mean([p["epe"] for p in r["pairs"]]) for r in base}
+    best_name = min(means, key=lambda n: math.inf if means[n] is None else means[n])
+    out = {}
+    for r in (r for r in results if r["kind"] == "model"):
+        ratios, claims, epes, paired = [], [], [], 0
+        for i, p in enumerate(r["pairs"]):
+            best = [b["pairs"][i]["epe_claimed"] for b in base if b["pairs"][i]["epe_claimed"] is not None]
+            if p["epe"] is None or not best:
+                continue
+            paired += 1
+            claims.append(p["claimed"] or 0.0)
+            epes.append(p["epe"])
+            if p["epe_claimed"] is not None:
+                ratios.append((p["epe_claimed"] / max(min(best), 1e-6), p["id"]))
+        worst = max(ratios, default=(None, None))
+        out[r["name"]] = {"baselines": [b["name"] for b in base], "pairs": paired, "rated": len(ratios),
+                          "worst_ratio": worst[0], "worst_ratio_id": worst[1],
+                          "within": _mean([float(q <= ratio_limit) for q, _ in ratios]),
+                          "claimed_mean": _mean(claims), "mean_pair_epe": _mean(epes),
+                          "best_baseline": best_name, "best_baseline_mean_pair_epe": means[best_name]}  # fmt: skip
+    return out
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    return float(np.mean(values)) if len(values) else None
 
 
 def _read(reader: ShardReader, k: int) -> dict:
@@ -339,8 +412,30 @@ def compact_table(report: dict) -> str:
     return _table(header, rows)
 
 
+def worst_case_table(report: dict) -> str:
+    """One row per method: pooled EPE beside the per-pair distribution, then what it claims."""
+    header = ["method", "EPE", "pair median", "pair p90", "worst pair", "worst id", "claimed %", "EPE claimed",
+              "not registered"]  # fmt: skip
+    rows = [[r["name"], _fmt(r["epe"]), _fmt(r["pair_median"]), _fmt(r["pair_p90"]), _fmt(r["worst_epe"]),
+             str(r["worst_id"]) if r["worst_id"] is not None else "–", _fmt(r["claimed"], 100),
+             _fmt(r["epe_claimed"]), str(len(r["unregistered"]))] for r in report["results"]]  # fmt: skip
+    return _table(header, rows)
+
+
+def versus_table(report: dict) -> str:
+    """One row per model: the pair-by-pair comparison with the best baseline (``versus_baselines``)."""
+    header = ["model", "pairs rated", f"within {RATIO_LIMIT:g}x %", "worst ratio", "worst ratio id", "claimed %",
+              "mean pair EPE", "best baseline", "its mean pair EPE"]  # fmt: skip
+    rows = [[name, f"{v['rated']} / {v['pairs']}", _fmt(v["within"], 100), _fmt(v["worst_ratio"]),
+             str(v["worst_ratio_id"]) if v["worst_ratio_id"] is not None else "–", _fmt(v["claimed_mean"], 100),
+             _fmt(v["mean_pair_epe"]), v["best_baseline"], _fmt(v["best_baseline_mean_pair_epe"])]
+            for name, v in report["versus_baselines"].items()]  # fmt: skip
+    return _table(header, rows)
+
+
 def to_markdown(report: dict) -> str:
-    """The paper's Table 2 (method x metric rows, ``pair P / role`` columns + all), then ``compact_table``."""
+    """The paper's Table 2 (method x metric rows, ``pair P / role`` columns + all), then ``compact_table``,
+    ``worst_case_table`` and, with baselines and models, ``versus_table``."""
     ds = report["dataset"]
     flows = [r for r in report["results"] if r["kind"] != "none"]  # the uncompensated row has no flow
     columns = list(dict.fromkeys(k for r in flows for k in r["groups"]["pair_role"]))
@@ -351,7 +446,11 @@ def to_markdown(report: dict) -> str:
     lines = [f"# projreg bench: {ds['path']}", "",
              f"{ds['evaluated']} of {ds['num_samples']} samples, {size}, split {ds['split']}, seed {ds['seed']}, "
              f"config {str(ds['config_hash'])[:12]}; reference model: {ref if ref else 'none'}.", "",
-             _table(["method", "metric", *columns, "all"], rows), "", compact_table(report), ""]  # fmt: skip
+             _table(["method", "metric", *columns, "all"], rows), "", compact_table(report), "",
+             "Per pair (EPE of each pair's valid pixels) and on the pixels each method claims:", "",
+             worst_case_table(report), ""]  # fmt: skip
+    if report["versus_baselines"]:
+        lines += ["Each model against the best baseline of each pair:", "", versus_table(report), ""]
     return "\n".join(lines)
 
 

@@ -220,6 +220,10 @@ def predict(
                                   refine=refine, progress=progress)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
+    for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
+        if not r.registered:
+            typer.echo(f"projreg: warning: {r.sample_id}: cannot be registered ({r.reason}); {r.out} holds a zero "
+                       "flow with no valid pixel", err=True)  # fmt: skip
     if not quiet:
         typer.echo(f"{len(written)} flow file(s) written: {out}", err=True)
 

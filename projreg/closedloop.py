@@ -69,15 +69,17 @@ class ClosedLoop:
         """``{method: {comp_psnr, comp_ssim, ...}}`` for sample ``k`` (its reader dict), plus ``uncompensated``.
 
         Args:
-            flows: each method's forward flow ``(H, W, 2)`` in captured pixels.
+            flows: each method's forward flow ``(H, W, 2)`` in captured pixels; non-finite where the
+                method claims no correspondence (the pre-warp leaves those projector pixels dark).
         """
         content = sample["projected"]
         camera = sample["captured"].shape[:2]
 
         def warp(image: np.ndarray, flow: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-            return compensate(
-                image, flow, np.isfinite(flow).all(axis=2) if valid is None else valid, camera_size=camera
-            )
+            valid = np.isfinite(flow).all(axis=2) if valid is None else valid
+            if not (valid & np.isfinite(flow).all(axis=2)).any():  # claims nothing: the projector stays dark
+                return np.zeros_like(image, shape=(*flow.shape[:2], 3))
+            return compensate(image, flow, valid, camera_size=camera)
 
         images = [warp(content, sample["flow"], sample["valid"]), content, *(warp(content, f) for f in flows.values())]
         views = self._views(k, images)

@@ -22,9 +22,12 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import cv2
 import numpy as np
+
+from .confidence import Prediction
 
 Register = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -76,9 +79,13 @@ def truth_to_projected_frame(
     return np.where(valid[..., None], target - p, 0).astype(np.float32), valid
 
 
-def register_any_size(method: Register, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
-    """``method(projected, captured)`` for a pair of any two sizes; flow in captured pixels (module docstring)."""
+def register_any_size(method: Register, projected: np.ndarray, captured: np.ndarray) -> np.ndarray | Prediction:
+    """``method(projected, captured)`` for a pair of any two sizes: its flow (or its
+    :class:`~projreg.confidence.Prediction`'s flow) in captured pixels (module docstring)."""
     if captured.shape[:2] == projected.shape[:2]:
         return method(projected, captured)
-    flow = method(projected, resize_to(captured, projected.shape))
-    return flow_to_captured(flow, frame_scale(projected.shape, captured.shape))
+    out = method(projected, resize_to(captured, projected.shape))
+    scale = frame_scale(projected.shape, captured.shape)
+    if isinstance(out, Prediction):
+        return replace(out, flow=flow_to_captured(out.flow, scale))
+    return flow_to_captured(out, scale)

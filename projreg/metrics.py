@@ -9,6 +9,15 @@ are the fractions of valid pixels with EPE > 1/3/5 px.
 large image counts more than a small one; ``image_epe`` is the mean of the per-image means. A metric
 with no pixels behind it is ``None`` (JSON ``null``), never NaN.
 
+Worst cases: ``pair_median`` and ``pair_p90`` are the median and the 90th percentile (linear
+interpolation, numpy's default) of the per-image mean EPEs, ``worst_epe`` the largest of them and
+``worst_id`` the id of that image (the first one on ties).
+
+Claimed pixels: a method may say where its flow holds (``claimed``, a bool mask, e.g. the refinement's
+confidence); ``claimed`` is the share of valid pixels it claims (pooled), ``claimed_mean`` the mean of
+the per-image shares, and ``epe_claimed`` the EPE pooled over the valid pixels it claims. A method that
+claims nothing is passed ``claimed=None`` and claims every pixel.
+
 Example:
     >>> import numpy as np
     >>> gt = np.zeros((1, 2, 2), np.float32)
@@ -25,7 +34,8 @@ from . import ProjregError
 
 BUCKETS = ("s0-10", "s10-40", "s40+")
 THRESHOLDS = (1, 3, 5)
-KEYS = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS), "image_epe", "pixels", "images")
+KEYS = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS), "image_epe", "pixels", "images",
+        "pair_median", "pair_p90", "worst_epe", "worst_id", "claimed", "claimed_mean", "epe_claimed")
 
 
 def epe_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -66,23 +76,36 @@ class EPEAccumulator:
         self.counts = np.zeros(1 + len(BUCKETS), np.int64)
         self.outliers = np.zeros(len(THRESHOLDS), np.int64)  # pixels with EPE > 1, 3, 5
         self.image_epes: list[float] = []
+        self.image_ids: list[str | None] = []  # parallel to image_epes
+        self.image_claims: list[float] = []  # per image with a valid pixel: share of them claimed
+        self.claimed_sum = 0.0  # EPE summed over claimed valid pixels
+        self.claimed_count = 0
         self.images = 0
 
-    def add(self, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> None:
+    def add(
+        self,
+        pred: np.ndarray,
+        gt: np.ndarray,
+        valid: np.ndarray,
+        claimed: np.ndarray | None = None,
+        image_id: str | None = None,
+    ) -> None:
         """Accumulate one image.
 
         Args:
             pred: predicted flow ``(H, W, 2)``, projected -> captured, pixels.
             gt: ground-truth flow ``(H, W, 2)``, same convention.
             valid: bool ``(H, W)``; pixels where it is false are ignored.
+            claimed: bool ``(H, W)``, the pixels where the method says its flow holds; None: all.
+            image_id: the name reported as ``worst_id`` if this image is the worst.
         """
         epe = epe_map(pred, gt)
-        valid = np.asarray(valid)
-        if valid.dtype != np.bool_ or valid.shape != epe.shape:
-            raise ProjregError(
-                f"valid must be a bool array of shape {epe.shape}, got {valid.dtype} {valid.shape}"
-            )
+        valid = _mask("valid", valid, epe.shape)
+        claimed = np.ones_like(valid) if claimed is None else _mask("claimed", claimed, epe.shape)
         e = epe[valid]  # [N]
+        ec = epe[valid & claimed]  # [M]
+        self.claimed_sum += ec.sum()
+        self.claimed_count += ec.size
         self.sums[0] += e.sum()
         self.counts[0] += e.size
         for i, mask in enumerate(bucket_masks(gt).values(), start=1):
@@ -93,6 +116,8 @@ class EPEAccumulator:
             self.outliers[i] += np.count_nonzero(e > t)
         if e.size:
             self.image_epes.append(float(e.mean()))
+            self.image_ids.append(image_id)
+            self.image_claims.append(ec.size / e.size)
         self.images += 1
 
     def merge(self, other: EPEAccumulator) -> EPEAccumulator:
@@ -101,6 +126,10 @@ class EPEAccumulator:
         self.counts += other.counts
         self.outliers += other.outliers
         self.image_epes.extend(other.image_epes)
+        self.image_ids.extend(other.image_ids)
+        self.image_claims.extend(other.image_claims)
+        self.claimed_sum += other.claimed_sum
+        self.claimed_count += other.claimed_count
         self.images += other.images
         return self
 
@@ -115,6 +144,15 @@ class EPEAccumulator:
         out["image_epe"] = _ratio(sum(self.image_epes), len(self.image_epes))
         out["pixels"] = n
         out["images"] = self.images
+        pairs = np.asarray(self.image_epes, np.float64)  # [images with a valid pixel]
+        worst = int(np.argmax(pairs)) if pairs.size else None
+        out["pair_median"] = float(np.median(pairs)) if pairs.size else None
+        out["pair_p90"] = float(np.percentile(pairs, 90)) if pairs.size else None
+        out["worst_epe"] = None if worst is None else float(pairs[worst])
+        out["worst_id"] = None if worst is None else self.image_ids[worst]
+        out["claimed"] = _ratio(float(self.claimed_count), n)
+        out["claimed_mean"] = _ratio(sum(self.image_claims), len(self.image_claims))
+        out["epe_claimed"] = _ratio(self.claimed_sum, self.claimed_count)
         return out
 
 
@@ -127,6 +165,13 @@ def summarize(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict[str, 
 
 def _ratio(total: float, count: int) -> float | None:
     return float(total) / count if count else None
+
+
+def _mask(name: str, mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    mask = np.asarray(mask)
+    if mask.dtype != np.bool_ or mask.shape != shape:
+        raise ProjregError(f"{name} must be a bool array of shape {shape}, got {mask.dtype} {mask.shape}")
+    return mask
 
 
 def _check_flow(name: str, flow: np.ndarray) -> None:

@@ -1,8 +1,10 @@
 """``projreg predict``: run a trained model on real (projected, captured) image pairs.
 
 Each pair gives the forward flow, projected -> captured, written as the shards' flow EXR (channels
-``forward.u``, ``forward.v``, ``valid``; ``valid`` is all true here: the model has no notion of
-invalid pixels) and, optionally, a colour-wheel PNG.
+``forward.u``, ``forward.v``, ``valid``) and, optionally, a colour-wheel PNG. With the refinement,
+``valid`` is 1 where the refinement's confidence is at least ``CONFIDENT`` (0.5; docs/model.md) and
+the header says whether the pair registered at all (``registered``, ``claimed``, ``reason``); the
+network alone (``refine=False``) has no notion of invalid pixels and claims all of them.
 
 The captured image may have another size than the projected one (a camera is not a projector): it
 is resized for the network and the flow is given in its own pixels (:mod:`projreg.frames`).
@@ -29,6 +31,7 @@ from projsynth.flowio import encode_flow_exr, flow_to_color, write_atomic_all
 from projsynth.sources import list_images, load_image
 
 from . import ProjregError
+from .confidence import CONFIDENT, Prediction
 from .evaluate import predict_flow
 from .frames import register_any_size
 from .model.net import SSJMFlow
@@ -95,6 +98,18 @@ def predict_resized(
     flow = predict_flow(model, small[0], small[1], device)  # [h', w', 2]
     flow = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
     return (flow * np.array([w / size[0], h / size[1]], np.float32)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Predicted:
+    """What ``predict`` wrote for one pair: the EXR, its sample id, whether the pair registered (if
+    not, ``reason`` says why: its flow is zero and no pixel is valid) and the share of valid pixels."""
+
+    out: Path
+    sample_id: str
+    registered: bool
+    claimed: float
+    reason: str
 
 
 @dataclass(frozen=True)
@@ -190,7 +205,7 @@ def predict(
     refine: bool = True,
     device: torch.device | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> list[Path]:
+) -> list[Predicted]:
     """Predict the flow of one pair of files, or of every pair of two folders.
 
     Args:
@@ -200,12 +215,12 @@ def predict(
         model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model.
         max_side: longest side the network sees; larger pairs are resized (see ``predict_resized``).
         refine: follow the network with the geometric refinement (``projreg.refine``), at the
-            pair's own resolution.
+            pair's own resolution; the EXR's ``valid`` is then its confidence >= ``CONFIDENT``.
         device: default CUDA when available, else CPU.
         progress: called ``(done, total)`` after each pair.
 
     Returns:
-        The EXR files written, in pair order.
+        One :class:`Predicted` per pair, in pair order (the caller warns about unregistered pairs).
     """
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
@@ -218,24 +233,30 @@ def predict(
     device = device or default_device()
     net = load_model(checkpoint, device)
     refiner = GeometricRefiner() if refine else None
-
-    def register(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+    def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
         flow = predict_resized(net, img0, img1, device, max_side)
-        return flow if refiner is None else refiner.refine(img0, img1, flow)[0]
+        return Prediction(flow) if refiner is None else refiner.predict(img0, img1, flow)
 
+    results = []
     for k, job in enumerate(jobs):
         img0, img1 = _load(job.projected), _load(job.captured)
-        flow = register_any_size(register, img0, img1)
+        pred = register_any_size(register, img0, img1)
+        valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
+        attrs = {"registered": "yes" if pred.registered else "no", "claimed": f"{valid.mean():.4f}",
+                 "valid_threshold": f"confidence >= {CONFIDENT}" if refiner else "all (network alone)"}  # fmt: skip
+        if pred.reason:
+            attrs["reason"] = pred.reason
+        results.append(Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason))
         try:
-            files = [(job.out, encode_flow_exr(flow, np.ones(flow.shape[:2], bool), job.sample_id))]
+            files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
             if job.viz is not None:
-                files.append((job.viz, png_bytes(job.viz, flow_to_color(flow))))
+                files.append((job.viz, png_bytes(job.viz, flow_to_color(pred.flow, valid))))
             write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e
         if progress:
             progress(k + 1, len(jobs))
-    return [job.out for job in jobs]
+    return results
 
 
 def _load(path: Path) -> np.ndarray:

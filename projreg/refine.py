@@ -41,6 +41,7 @@ import numpy as np
 
 from . import ProjregError
 from .baselines import homography_flow, proper_homography, to_gray
+from .confidence import CONFIDENT, Prediction, pixel_confidence
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
 
@@ -68,6 +69,14 @@ class RefineConfig:
     ncc_sigma: float = 7.0
     contrast_sigma: float = 16.0
     plain_pass: bool = True
+    texture_floor: float = 256.0
+    min_evidence: float = 0.01
+    max_area_ratio: float = 6.0
+    min_hull: float = 0.02
+    free_px: float = 16.0
+    support_margin: float = 0.1
+    confidence_radius: float = 0.03
+    rival_margin: float = 0.05
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -81,14 +90,17 @@ class RefineConfig:
 
 @dataclass(frozen=True)
 class RefineInfo:
-    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity" or "skipped"),
-    ``images`` ("normalised" or "plain": the gray images the residual was measured on), and the
-    selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"`` (median local NCC, in
-    [-1, 1])."""
+    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "none" for a
+    textureless pair or "skipped"), ``images`` ("normalised" or "plain": the gray images the residual
+    was measured on), the selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"``
+    (texture-weighted mean local NCC, in [-1, 1]), the per-pixel ``confidence`` (float32 ``(H, W)``
+    in [0, 1]) and ``evidence``, the share of the frame where the projected image has texture."""
 
     hypothesis: str
     images: str
     scores: dict[str, float]
+    confidence: np.ndarray
+    evidence: float
 
 
 class GeometricRefiner:
@@ -99,49 +111,98 @@ class GeometricRefiner:
         self._dis = cv2.DISOpticalFlow_create(cv2.DISOpticalFlow_PRESET_MEDIUM)
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
-        """The refined flow of one pair and which hypothesis produced it.
+        """The refined flow of one pair and which hypothesis produced it (:meth:`predict` without the
+        confidence)."""
+        pred, info = self.predict_info(projected, captured, flow)
+        return pred.flow, info
+
+    def predict(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> Prediction:
+        """The refined flow with the pixels it claims (confidence >= ``CONFIDENT``) and whether the
+        pair registered at all; see :meth:`predict_info`."""
+        return self.predict_info(projected, captured, flow)[0]
+
+    def predict_info(
+        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray
+    ) -> tuple[Prediction, RefineInfo]:
+        """Refine one pair: flow, per-pixel confidence, registered or not, and what was chosen.
 
         Args:
             projected, captured: uint8 RGB ``(H, W, 3)`` of one size.
             flow: the network's flow for the pair, float ``(H, W, 2)``.
 
         Returns:
-            float32 ``(H, W, 2)`` forward flow, and the :class:`RefineInfo`. Pairs with a side under
-            ``MIN_SIDE`` come back unchanged (``hypothesis="skipped"``).
+            The :class:`~projreg.confidence.Prediction` (float32 ``(H, W, 2)`` forward flow, the pixels
+            whose confidence is at least ``CONFIDENT``, ``registered``) and the :class:`RefineInfo`
+            (its ``confidence`` is the per-pixel map). A pair whose projected image has texture on
+            less than ``min_evidence`` of the frame is not registered: the flow is zero (the
+            projection is left where it is) and nothing is claimed. Pairs with a side under
+            ``MIN_SIDE`` come back unchanged and unclaimed (``hypothesis="skipped"``).
         """
         h, w = projected.shape[:2]
         if projected.shape != captured.shape or projected.ndim != 3 or flow.shape != (h, w, 2):
             raise ProjregError(f"refine needs projected, captured (H, W, 3) and flow (H, W, 2) of one size, got "
                                f"{projected.shape}, {captured.shape}, {flow.shape}")  # fmt: skip
+        flow = np.asarray(flow, np.float32)
+        none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
-            return np.asarray(flow, np.float32), RefineInfo("skipped", "", {})
+            return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
         cfg = self.config
         plain = (to_gray(projected), to_gray(captured))
         normalised = tuple(normalize_contrast(g, cfg.contrast_sigma) for g in plain)
+        evidence = texture_weight(plain[0], cfg.texture_floor)  # [H, W] in [0, 1]: absolute texture
+        share = float((evidence >= 0.5).mean())
+        if share < cfg.min_evidence:
+            why = f"textureless: {100 * share:.1f}% of the projected image carries texture"
+            return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, share)
         images = {"normalised": normalised}
         if cfg.plain_pass and cfg.contrast_sigma > 0:
             images["plain"] = plain
         step = fit_step(h, w, cfg.fit_points)
-        hypotheses = {"network": fit_homography(flow, step, cfg.ransac_px), "identity": np.eye(3)}
-        best, scores = None, {}
+        textured = evidence >= 0.5
+        support = near(textured, cfg.support_margin * max(h, w))
+        # the network's own flow is fitted everywhere: it carries the network's hypothesis into flat
+        # regions too, and the refit below keeps to the textured pixels
+        fit = fit_homography(flow, step, cfg.ransac_px, None, cfg.max_area_ratio, cfg.min_hull)
+        hypotheses = {"network": (None if fit is None else fit[0], flow), "identity": (np.eye(3), np.zeros_like(flow))}
+        cands, scores = {}, {}
         for kind, (gray0, gray1) in images.items():
-            weight = texture_weight(gray0)
-            for name, H in hypotheses.items():
+            weight = texture_weight(gray0, cfg.texture_floor if kind == "plain" else 0.0)
+            for name, (H, prior) in hypotheses.items():
                 if H is None:
                     continue
-                cand = self.hypothesis(gray0, gray1, H, weight, step)[2]
                 key = f"{name}/{kind}"
-                scores[key] = alignment_score(*normalised, cand, cfg.ncc_sigma)
-                if best is None or scores[key] > scores[best[0]]:
-                    best = (key, cand)
-        assert best is not None  # the identity always exists
-        name, kind = best[0].split("/")
-        return best[1], RefineInfo(name, kind, scores)
+                cands[key] = self.hypothesis(gray0, gray1, H, weight, step, textured, support, prior)[2]
+                scores[key] = alignment_score(*normalised, cands[key], cfg.ncc_sigma, evidence)
+        best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
+        conf = self.confidence(normalised, cands, scores, best, evidence)
+        net = [k for k in scores if k.startswith("network/")]
+        if (conf >= CONFIDENT).mean() < cfg.min_evidence and net and best not in net:
+            # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
+            # so the answer stays with the network's hypothesis rather than the identity's
+            best = max(net, key=lambda k: scores[k])
+            conf = self.confidence(normalised, cands, scores, best, evidence)
+        claimed = conf >= CONFIDENT
+        name, kind = best.split("/")
+        why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
+        pred = Prediction(cands[best], claimed, not why, why)
+        return pred, RefineInfo(name, kind, scores, conf, share)
 
     def hypothesis(
-        self, gray0: np.ndarray, gray1: np.ndarray, H: np.ndarray, weight: np.ndarray, step: int
+        self,
+        gray0: np.ndarray,
+        gray1: np.ndarray,
+        H: np.ndarray,
+        weight: np.ndarray,
+        step: int,
+        textured: np.ndarray,
+        support: np.ndarray,
+        prior: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain).
+        """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain),
+        with the guards: the refit uses ``textured`` pixels only and must be well conditioned, and
+        outside ``support`` (farther than ``support_margin`` from any texture: no evidence) the
+        answer stays within ``free_px`` of ``prior``, the hypothesis it started from (the network's
+        flow, or zero for the identity).
 
         Returns:
             ``(base, residual, flow)``, float32 ``(H, W, 2)`` each: the refitted homography's flow, the
@@ -151,12 +212,36 @@ class GeometricRefiner:
         h, w = gray0.shape
         base = homography_flow(H, h, w)  # [H, W, 2]
         full = compose(base, self._residual(gray0, gray1, base))
-        H2 = fit_homography(full, step, cfg.refit_px)
-        if H2 is not None:
-            base = homography_flow(H2, h, w)
+        fit = fit_homography(full, step, cfg.refit_px, textured, cfg.max_area_ratio, cfg.min_hull)
+        if fit is not None:
+            base = homography_flow(fit[0], h, w)
         residual = self._residual(gray0, gray1, base)  # [H, W, 2], in the projector frame
         smooth = fit_bspline(residual, weight, cfg.grid, step, cfg.robust_px, cfg.ridge, cfg.irls_iterations)
-        return base, residual, compose(base, smooth)
+        return base, residual, bound_outside(compose(base, smooth), prior, support, cfg.free_px)
+
+    def confidence(
+        self,
+        normalised: tuple[np.ndarray, np.ndarray],
+        cands: dict[str, np.ndarray],
+        scores: dict[str, float],
+        best: str,
+        evidence: np.ndarray,
+    ) -> np.ndarray:
+        """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`projreg.confidence.pixel_confidence`):
+        texture, local NCC, forward-backward residual and agreement with the close runners-up."""
+        cfg = self.config
+        gray0, gray1 = normalised
+        flow = cands[best]
+        warped = warp_back(gray1, flow)
+        fwd = self._dis.calc(gray0, warped, None)  # what is left to move: ~0 where the flow holds
+        bwd = self._dis.calc(warped, gray0, None)
+        fb = np.maximum(np.linalg.norm(fwd, axis=-1), np.linalg.norm(compose(bwd, fwd), axis=-1))  # [H, W]
+        rivals = [cands[k] for k in cands if k != best and scores[k] >= scores[best] - cfg.rival_margin]
+        spread = np.zeros(flow.shape[:2], np.float32)
+        for other in rivals:
+            spread = np.maximum(spread, np.linalg.norm(other - flow, axis=-1))
+        ncc = local_ncc(gray0, warped, cfg.ncc_sigma)
+        return pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
 
     def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray) -> np.ndarray:
         """DIS flow from the projected image to the captured image warped back by ``base``."""
@@ -183,22 +268,81 @@ def fit_step(h: int, w: int, points: int) -> int:
     return max(1, math.ceil(math.sqrt(h * w / points)))
 
 
-def fit_homography(flow: np.ndarray, step: int, threshold: float) -> np.ndarray | None:
+def fit_homography(
+    flow: np.ndarray,
+    step: int,
+    threshold: float,
+    mask: np.ndarray | None = None,
+    max_area_ratio: float = math.inf,
+    min_hull: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Robust homography (projected -> captured pixels) of a flow's correspondences on a ``step`` grid.
 
-    MAGSAC++ with ``threshold`` px, OpenCV's RNG seeded first so the result is reproducible. None when
-    no model is found, or when it sends part of the frame through infinity (``proper_homography``).
+    MAGSAC++ with ``threshold`` px, OpenCV's RNG seeded first so the result is reproducible, on the
+    grid points where ``mask`` (bool ``(H, W)``, None: all) is true.
+
+    Returns:
+        ``(H, hull)``: the 3 x 3 matrix and the bool ``(H, W)`` convex hull of its inliers (the region
+        the fit interpolates; outside it, it extrapolates). None when no model is found, when it
+        sends part of the frame through infinity (``proper_homography``), when it is badly
+        conditioned (its local area scale varies more than ``max_area_ratio`` times over the frame,
+        or flips orientation: ``area_ratio``), or when the hull covers less than ``min_hull`` of it.
     """
     h, w = flow.shape[:2]
     y, x = np.mgrid[0:h:step, 0:w:step].astype(np.float32)  # [h', w'] each
     src = np.stack([x, y], axis=-1).reshape(-1, 2)  # [N, 2]
     dst = src + flow[::step, ::step].reshape(-1, 2)
     keep = np.isfinite(dst).all(axis=1)
+    if mask is not None:
+        keep &= mask[::step, ::step].reshape(-1)
     if keep.sum() < 8:
         return None
     cv2.setRNGSeed(0)
-    H, _ = cv2.findHomography(src[keep], dst[keep], cv2.USAC_MAGSAC, threshold, maxIters=2000, confidence=0.999)
-    return H if H is not None and proper_homography(H, h, w) else None
+    H, inl = cv2.findHomography(src[keep], dst[keep], cv2.USAC_MAGSAC, threshold, maxIters=2000, confidence=0.999)
+    if H is None or inl is None or inl.sum() < 8 or not proper_homography(H, h, w):
+        return None
+    if not area_ratio(H, h, w) <= max_area_ratio:
+        return None
+    pts = src[keep][inl.ravel() > 0]  # [M, 2] inliers, projected pixels
+    hull = np.zeros((h, w), np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(pts).astype(np.int32)), 1)
+    if hull.mean() < min_hull:
+        return None
+    return H, hull > 0
+
+
+def area_ratio(H: np.ndarray, h: int, w: int) -> float:
+    """How much a homography's local area scale varies over an ``h x w`` frame: max / min over the
+    corners of ``det J(p) = det(H) / (h_3 . p)^3``; ``inf`` when it flips orientation somewhere (a
+    surface seen by the camera from the projector's side cannot mirror the image).
+
+    Example:
+        >>> area_ratio(np.eye(3), 10, 10)
+        1.0
+    """
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], np.float64)
+    det = np.linalg.det(np.asarray(H, np.float64)) / (corners @ np.asarray(H, np.float64)[2]) ** 3  # [4]
+    return float(det.max() / det.min()) if (det > 0).all() else math.inf
+
+
+def near(mask: np.ndarray, radius: float) -> np.ndarray:
+    """Pixels at most ``radius`` px (Euclidean) from a true pixel of ``mask``."""
+    far = cv2.distanceTransform(np.where(mask, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+    return far <= radius
+
+
+def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, bound: float) -> np.ndarray:
+    """``flow`` where ``support`` is true; elsewhere moved at most ``bound`` px away from ``prior``.
+
+    Example:
+        >>> f = np.array([[[30.0, 40.0], [1.0, 0.0]]], np.float32)
+        >>> bound_outside(f, np.zeros_like(f), np.array([[False, False]]), 5.0)[0].tolist()
+        [[3.0, 4.0], [1.0, 0.0]]
+    """
+    d = flow - prior  # [H, W, 2]
+    n = np.linalg.norm(d, axis=-1, keepdims=True)
+    scale = np.where(support[..., None], 1.0, np.minimum(1.0, bound / np.maximum(n, 1e-6)))
+    return (prior + d * scale).astype(np.float32)
 
 
 @lru_cache(maxsize=4)
@@ -227,12 +371,19 @@ def compose(base: np.ndarray, residual: np.ndarray) -> np.ndarray:
     return (residual + moved).astype(np.float32)
 
 
-def texture_weight(gray: np.ndarray, sigma: float = 3.0) -> np.ndarray:
-    """Per-pixel weight in [0, 1]: local gradient energy relative to the frame's median, capped at 1."""
+def texture_weight(gray: np.ndarray, floor: float = 0.0, sigma: float = 3.0) -> np.ndarray:
+    """Per-pixel weight in [0, 1]: local gradient energy (Sobel, squared, Gaussian-averaged) relative
+    to the frame's median or to ``floor``, whichever is larger, capped at 1.
+
+    The floor makes the weight absolute where the frame is mostly flat: a picture covering a quarter of
+    the frame, or one with almost no contrast, has a median energy near zero, and relative to that
+    noise would count as texture. ``floor = 64 g^2`` is the energy of a ramp of ``g`` grey levels per
+    pixel (a Sobel derivative is 8 times the slope).
+    """
     g = gray.astype(np.float32)
     energy = cv2.GaussianBlur(cv2.Sobel(g, cv2.CV_32F, 1, 0) ** 2 + cv2.Sobel(g, cv2.CV_32F, 0, 1) ** 2,
                               (0, 0), sigma)  # fmt: skip
-    return np.minimum(energy / (float(np.median(energy)) + 1e-3), 1.0)
+    return np.minimum(energy / (max(float(np.median(energy)), floor) + 1e-3), 1.0)
 
 
 def bspline_basis(n: int, k: int) -> np.ndarray:
@@ -289,12 +440,11 @@ def fit_bspline(
     return np.stack([By @ c[..., i] @ Bx.T for i in range(2)], axis=-1).astype(np.float32)
 
 
-def alignment_score(gray0: np.ndarray, gray1: np.ndarray, flow: np.ndarray, sigma: float = 7.0) -> float:
-    """Median over the frame of the local normalised cross-correlation of ``gray0`` and ``gray1``
-    warped back by ``flow`` (Gaussian window ``sigma``): 1 is a perfect match up to local gain and
-    offset, about 0 no match."""
-    a = gray0.astype(np.float32)
-    b = warp_back(gray1, flow).astype(np.float32)
+def local_ncc(gray0: np.ndarray, gray1: np.ndarray, sigma: float = 7.0) -> np.ndarray:
+    """Local normalised cross-correlation of two aligned images (Gaussian window ``sigma``), float32
+    ``(H, W)`` in [-1, 1]: 1 is a match up to local gain and offset, about 0 no match (and 0 where
+    either image is flat)."""
+    a, b = gray0.astype(np.float32), gray1.astype(np.float32)
 
     def blur(img: np.ndarray) -> np.ndarray:
         return cv2.GaussianBlur(img, (0, 0), sigma)
@@ -302,4 +452,20 @@ def alignment_score(gray0: np.ndarray, gray1: np.ndarray, flow: np.ndarray, sigm
     ma, mb = blur(a), blur(b)
     cov = blur(a * b) - ma * mb
     var = np.maximum((blur(a * a) - ma * ma) * (blur(b * b) - mb * mb), 1e-2)
-    return float(np.median(cov / np.sqrt(var)))
+    return cov / np.sqrt(var)
+
+
+def alignment_score(
+    gray0: np.ndarray, gray1: np.ndarray, flow: np.ndarray, sigma: float = 7.0, weight: np.ndarray | None = None
+) -> float:
+    """How well ``flow`` aligns the pair: the mean of :func:`local_ncc` between ``gray0`` and ``gray1``
+    warped back by ``flow``, weighted by ``weight`` (the projected image's texture; None: uniform).
+
+    Weighting by texture makes the score count coverage: a flow that aligns one textured corner
+    and misaligns the rest of the texture scores by the whole texture, not by a median that flat
+    regions (NCC about 0 under any flow) dominate.
+    """
+    ncc = local_ncc(gray0, warp_back(gray1, flow), sigma)
+    if weight is None:
+        return float(ncc.mean())
+    return float((ncc * weight).sum() / max(float(weight.sum()), 1e-6))

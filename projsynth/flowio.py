@@ -59,7 +59,9 @@ def _as_valid(valid: np.ndarray, shape: tuple[int, ...], where: str) -> np.ndarr
     return valid
 
 
-def encode_flow_exr(flow: np.ndarray, valid: np.ndarray, sample_id: str, compression: str = "zip") -> bytes:
+def encode_flow_exr(
+    flow: np.ndarray, valid: np.ndarray, sample_id: str, compression: str = "zip", attrs: dict[str, str] | None = None
+) -> bytes:
     """Encode one sample's flow as a complete single-part scanline OpenEXR file, in memory.
 
     OpenEXR 3.5's ``File.write`` accepts a binary stream, so the file is written into an
@@ -73,6 +75,8 @@ def encode_flow_exr(flow: np.ndarray, valid: np.ndarray, sample_id: str, compres
         compression: ``"zip"`` (lossless, the default) or ``"pxr24"`` (lossy: float32 rounded to
             24 bits, so the error is at most ``|flow| * 2**-16``, i.e. <= 2**-8 = 0.0039 px for
             ``|flow| < 512``; ``valid`` stays exact).
+        attrs: more string header attributes (e.g. ``projreg predict``'s ``registered``); they
+            cannot replace the ones above.
 
     Returns:
         The EXR file: channels ``forward.u``, ``forward.v``, ``valid`` (FLOAT); string attributes
@@ -93,6 +97,7 @@ def encode_flow_exr(flow: np.ndarray, valid: np.ndarray, sample_id: str, compres
     flow = _as_flow(flow, where)
     valid = _as_valid(valid, flow.shape, where)
     header = {
+        **{str(k): str(v) for k, v in (attrs or {}).items()},
         "compression": _COMPRESSIONS[compression],
         "type": OpenEXR.scanlineimage,
         "units": "px",

@@ -8,8 +8,9 @@ from typer.testing import CliRunner
 
 import projreg.bench
 from projreg import ProjregError
-from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices
+from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices, to_markdown
 from projreg.cli import app
+from projreg.confidence import Prediction, as_prediction
 from projreg.evaluate import predict_flow
 from projreg.metrics import KEYS, EPEAccumulator
 from projreg.predict import load_model
@@ -57,7 +58,7 @@ def _cli(*args):
 
 
 def test_report_schema(report, tiny_train):
-    assert set(report) == {"dataset", "reference_model", "results"}
+    assert set(report) == {"dataset", "reference_model", "results", "versus_baselines"}
     manifest = json.loads((tiny_train / "manifest.json").read_text())
     assert report["dataset"] == {"path": str(tiny_train), "num_samples": 16, "evaluated": 16, "size": [64, 96],
                                  "camera_size": [64, 96], "seed": 0, "split": "train",
@@ -66,7 +67,8 @@ def test_report_schema(report, tiny_train):
     assert [(r["name"], r["kind"]) for r in report["results"]] == [
         ("last", "model"), ("dis-medium", "baseline"), ("zero", "baseline"), ("shifted", "baseline")]  # fmt: skip
     for r in report["results"]:
-        assert set(r) == {"name", "kind", "refined", *KEYS, "ms_per_pair", "groups"}
+        assert set(r) == {"name", "kind", "refined", *KEYS, "ms_per_pair", "groups", "pairs", "unregistered"}
+        assert [p["id"] for p in r["pairs"]] == [s["params"]["sample_id"] for s in _samples(tiny_train)]
         assert r["ms_per_pair"] > 0
         assert tuple(r["groups"]) == GROUPS
         assert set(r["groups"]["role"]) == ROLES
@@ -83,16 +85,17 @@ def test_report_schema(report, tiny_train):
 def test_pooled_metrics_equal_direct_recomputation(report, tiny_train, tiny_ckpt, name):
     if name == "last":
         model, refiner = load_model(tiny_ckpt, CPU), GeometricRefiner()
-        predict = lambda a, b: refiner.refine(a, b, predict_flow(model, a, b, CPU))[0]  # noqa: E731
+        predict = lambda a, b: refiner.predict(a, b, predict_flow(model, a, b, CPU))  # noqa: E731
     else:
         predict = projreg.bench.baseline_method("dis-medium").predict
     acc = EPEAccumulator()
     for s in _samples(tiny_train):
-        acc.add(predict(s["projected"], s["captured"]), s["flow"], s["valid"])
+        pred = as_prediction(predict(s["projected"], s["captured"]))
+        acc.add(pred.flow, s["flow"], s["valid"], pred.claimed, s["params"]["sample_id"])
     direct, got = acc.result(), _by_name(report)[name]
     for key in KEYS:
-        if direct[key] is None:  # the tiny set has no flow above 10 px
-            assert got[key] is None, key
+        if direct[key] is None or isinstance(direct[key], str):  # no flow above 10 px; worst_id
+            assert got[key] == direct[key], key
         else:
             assert got[key] == pytest.approx(direct[key], rel=1e-9, abs=1e-12), key
 
@@ -132,6 +135,59 @@ def test_zero_predictor_and_shifted_oracle_give_hand_computed_metrics(report, ti
     assert res["dis-medium"]["epe"] < 0.7 * zero["epe"]
 
 
+def test_per_pair_distribution_worst_pair_and_claims_are_hand_computed(tiny_train, monkeypatch):
+    """The worst cases beside the pooled figures, on a method that claims half of each frame."""
+    monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
+    samples = _samples(tiny_train)
+    gt = {_key(s["projected"], s["captured"]): s for s in samples}
+
+    def half(a, b):  # zero flow, claiming the left half of the frame; the 4th sample unregistered
+        s = gt[_key(a, b)]
+        claimed = np.zeros(s["valid"].shape, bool)
+        claimed[:, : claimed.shape[1] // 2] = True
+        if s is samples[3]:
+            return Prediction(np.zeros_like(s["flow"]), np.zeros_like(claimed), False, "textureless")
+        return Prediction(np.zeros_like(s["flow"]), claimed)
+
+    shifted = Method("shifted", "baseline", lambda a, b: gt[_key(a, b)]["flow"] + SHIFT)
+    rep = run_bench(tiny_train, baselines=[], extra_methods=[Method("half", "model", half), shifted], device=CPU)
+    (r, b), v = rep["results"], rep["versus_baselines"]
+    mags = [np.hypot(*s["flow"].astype(np.float64).transpose(2, 0, 1)) for s in samples]  # zero flow: EPE = |gt|
+    per_pair = np.array([m[s["valid"]].mean() for m, s in zip(mags, samples, strict=True)])
+    ids = [s["params"]["sample_id"] for s in samples]
+    w = samples[0]["valid"].shape[1] // 2
+    left = [s["valid"].copy() for s in samples]
+    for k, m in enumerate(left):
+        m[:, w:] = False
+        if k == 3:
+            m[:] = False
+    assert r["pair_median"] == pytest.approx(np.median(per_pair), rel=1e-9)
+    assert r["pair_p90"] == pytest.approx(np.percentile(per_pair, 90), rel=1e-9)
+    assert r["worst_epe"] == pytest.approx(per_pair.max(), rel=1e-9) and r["worst_id"] == ids[int(per_pair.argmax())]
+    claimed_px = sum(int(m.sum()) for m in left)
+    assert r["claimed"] == pytest.approx(claimed_px / r["pixels"], rel=1e-9)
+    shares = [m.sum() / s["valid"].sum() for m, s in zip(left, samples, strict=True)]
+    assert r["claimed_mean"] == pytest.approx(np.mean(shares), rel=1e-9)
+    epe_claimed = sum(float(mag[m].sum()) for mag, m in zip(mags, left, strict=True)) / claimed_px
+    assert r["epe_claimed"] == pytest.approx(epe_claimed, rel=1e-9)
+    assert r["unregistered"] == [ids[3]] and [p["registered"] for p in r["pairs"]].count(False) == 1
+    assert r["pairs"][3]["epe_claimed"] is None and r["pairs"][0]["epe"] == pytest.approx(per_pair[0], rel=1e-9)
+    # the baseline is 2 px off everywhere: per pair, the ratio is the claimed EPE over 2
+    ratios = [mag[m].mean() / 2 for k, (mag, m) in enumerate(zip(mags, left, strict=True)) if k != 3]
+    assert b["pair_median"] == pytest.approx(2.0, abs=1e-4) and b["claimed"] == 1.0
+    vs = v["half"]
+    assert (vs["pairs"], vs["rated"], vs["baselines"], vs["best_baseline"]) == (16, 15, ["shifted"], "shifted")
+    assert vs["worst_ratio"] == pytest.approx(max(ratios), rel=1e-4)
+    assert vs["within"] == pytest.approx(np.mean(np.array(ratios) <= 1.5))
+    assert vs["claimed_mean"] == pytest.approx(np.mean(shares), rel=1e-9)
+    assert vs["mean_pair_epe"] == pytest.approx(per_pair.mean(), rel=1e-9)
+    assert vs["best_baseline_mean_pair_epe"] == pytest.approx(2.0, abs=1e-4)
+    md = to_markdown(rep)
+    assert f"| half | {r['epe']:.2f} | {r['pair_median']:.2f} | {r['pair_p90']:.2f} | {r['worst_epe']:.2f} | " \
+           f"{r['worst_id']} | {100 * r['claimed']:.2f} | {r['epe_claimed']:.2f} | 1 |" in md
+    assert f"| half | 15 / 16 | {100 * vs['within']:.2f} | {vs['worst_ratio']:.2f} |" in md
+
+
 def test_limit_spreads_samples_and_no_reference_runs_baselines_only(tiny_train, tmp_path, monkeypatch):
     assert sample_indices(16, 4) == [0, 5, 10, 15]
     assert sample_indices(3, 10) == [0, 1, 2]
@@ -147,7 +203,7 @@ def test_limit_spreads_samples_and_no_reference_runs_baselines_only(tiny_train, 
     acc = EPEAccumulator()
     predict = projreg.bench.baseline_method("dis-fast").predict
     for s in _samples(tiny_train, [0, 5, 10, 15]):
-        acc.add(predict(s["projected"], s["captured"]), s["flow"], s["valid"])
+        acc.add(as_prediction(predict(s["projected"], s["captured"])).flow, s["flow"], s["valid"])
     assert r["epe"] == pytest.approx(acc.result()["epe"], rel=1e-9)
 
 

@@ -136,3 +136,21 @@ def test_pooled_epe_of_union_is_count_weighted_mean(sets):
         assert r["epe"] is None
     else:
         assert r["epe"] == pytest.approx(sum(s for s, _ in weighted) / sum(n for _, n in weighted))
+
+
+def test_worst_pairs_and_claimed_pixels_hand_computed():
+    gt = np.zeros((1, 4, 2), np.float32)
+    acc = EPEAccumulator()
+    for k, e in enumerate([1.0, 5.0, 2.0, 4.0, 3.0]):
+        claimed = np.array([[True, True, False, False]]) if k == 1 else None
+        err = np.array([[e, e, 9.0, 9.0]], np.float32) if k == 1 else np.full((1, 4), e, np.float32)
+        acc.add(_pred(gt, err), gt, np.ones((1, 4), bool), claimed, f"s{k}")
+    r = acc.result()
+    per_pair = [1.0, (5 + 5 + 9 + 9) / 4, 2.0, 4.0, 3.0]  # 1, 7, 2, 4, 3
+    assert r["pair_median"] == pytest.approx(3.0)
+    assert r["pair_p90"] == pytest.approx(4 + 0.6 * (7 - 4))  # linear interpolation between 4 and 7
+    assert (r["worst_epe"], r["worst_id"]) == (pytest.approx(max(per_pair)), "s1")
+    assert r["claimed"] == pytest.approx(18 / 20) and r["claimed_mean"] == pytest.approx((4 * 1 + 0.5) / 5)
+    assert r["epe_claimed"] == pytest.approx((4 * (1 + 2 + 4 + 3) + 2 * 5) / 18)
+    with pytest.raises(ProjregError, match="claimed must be a bool"):
+        acc.add(gt, gt, np.ones((1, 4), bool), np.ones((1, 3), bool))

@@ -42,14 +42,17 @@ def test_file_mode_writes_the_model_flow_as_exr_and_png(pairs, tiny_ckpt, tmp_pa
     result = _cli("--projected", a, "--captured", b, "--out", out, "--viz", viz, "--model", tiny_ckpt)
     assert result.exit_code == 0, (result.stderr, result.exception)
     flow, valid, header = read_flow_exr(out)
-    assert flow.shape == (64, 96, 2) and valid.all()
+    assert flow.shape == (64, 96, 2)
     assert header["sample_id"] == "a.png" and header["direction"] == "projected->captured"
     # the same numbers as the model then the refinement run directly on the arrays: order, channels and
-    # direction wired right
-    expected = GeometricRefiner().refine(img0, img1, predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU))[0]
-    np.testing.assert_allclose(flow, expected, atol=1e-4)
+    # direction wired right; valid is the refinement's confidence >= 0.5
+    expected = GeometricRefiner().predict(img0, img1, predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU))
+    np.testing.assert_allclose(flow, expected.flow, atol=1e-4)
+    np.testing.assert_array_equal(valid, expected.claimed)
+    assert 0.3 < valid.mean() and header["registered"] == "yes" and float(header["claimed"]) == round(valid.mean(), 4)
+    assert header["valid_threshold"] == "confidence >= 0.5" and "warning" not in result.stderr
     png = cv2.cvtColor(cv2.imread(str(viz)), cv2.COLOR_BGR2RGB)
-    np.testing.assert_array_equal(png, flow_to_color(flow))
+    np.testing.assert_array_equal(png, flow_to_color(flow, valid))
     assert not [p for p in tmp_path.rglob("*.tmp")]
 
 
@@ -64,10 +67,23 @@ def test_folder_mode_pairs_by_relative_name(pairs, tiny_ckpt, tmp_path):
     assert result.exit_code == 0, (result.stderr, result.exception)
     model = load_model(tiny_ckpt, CPU)
     for name, stem, (img0, img1) in zip(names, ["x_flow", "sub/y_flow"], pairs, strict=True):
-        flow, _, header = read_flow_exr(out / f"{stem}.exr")
-        assert header["sample_id"] == name
+        flow, valid, header = read_flow_exr(out / f"{stem}.exr")
+        assert header["sample_id"] == name and valid.all()  # the network alone claims every pixel
         np.testing.assert_allclose(flow, predict_flow(model, img0, img1, CPU), atol=1e-4)
         assert (viz / f"{stem}.png").is_file()
+
+
+def test_a_blank_pair_is_reported_on_stderr_and_left_invalid(pairs, tiny_ckpt, tmp_path):
+    blank = np.full((64, 96, 3), 150, np.uint8)
+    a, b = _write(tmp_path / "blank.png", blank), _write(tmp_path / "seen.png", pairs[0][1])
+    out = tmp_path / "f.exr"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    (line,) = [x for x in result.stderr.splitlines() if x.strip()]
+    assert line.startswith("projreg: warning: blank.png: cannot be registered (textureless") and str(out) in line
+    flow, valid, header = read_flow_exr(out)
+    assert not valid.any() and not flow.any()
+    assert header["registered"] == "no" and "textureless" in header["reason"] and header["claimed"] == "0.0000"
 
 
 def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_path):

@@ -10,13 +10,18 @@ from projreg.refine import (
     GeometricRefiner,
     RefineConfig,
     alignment_score,
+    area_ratio,
+    bound_outside,
     bspline_basis,
     compose,
     fit_bspline,
     fit_homography,
+    near,
     normalize_contrast,
+    texture_weight,
     warp_back,
 )
+from projsynth.procedural import render_procedural
 from projsynth.shards import ShardReader
 
 from .conftest import make_shards
@@ -83,8 +88,15 @@ def test_fit_homography_recovers_h_through_outliers():
     rng = np.random.default_rng(1)
     bad = rng.random((h, w)) < 0.3
     flow[bad] = rng.uniform(-40, 40, (int(bad.sum()), 2))
-    H = fit_homography(flow, 2, 1.0)
+    H, hull = fit_homography(flow, 2, 1.0)
     assert np.abs(homography_flow(H, h, w) - homography_flow(H_TRUE, h, w)).max() < 1e-3
+    assert hull.mean() > 0.95  # inliers everywhere: the hull is the frame
+    left = np.zeros((h, w), bool)
+    left[:, : w // 4] = True
+    H, hull = fit_homography(flow, 2, 1.0, left)  # fitted on the left quarter only
+    assert np.abs(homography_flow(H, h, w) - homography_flow(H_TRUE, h, w)).max() < 1e-3
+    assert 0.2 < hull.mean() < 0.26 and not hull[:, w // 4 + 2 :].any()
+    assert fit_homography(flow, 2, 1.0, left, min_hull=0.3) is None
 
 
 def test_fit_homography_refuses_flows_through_infinity():
@@ -94,6 +106,29 @@ def test_fit_homography_refuses_flows_through_infinity():
     q = np.stack([x, y, np.ones_like(x)], -1) @ H.T
     flow = (q[..., :2] / np.where(np.abs(q[..., 2:]) < 1e-6, 1e-6, q[..., 2:]) - np.stack([x, y], -1))
     assert fit_homography(flow.astype(np.float32), 1, 0.5) is None
+
+
+def test_area_ratio_flags_homographies_that_explode_or_mirror():
+    h, w = 100, 200
+    assert area_ratio(H_TRUE, h, w) == pytest.approx(1.04, abs=0.04)  # a mild projective view
+    steep = np.array([[1, 0, 0], [0, 1, 0], [0.004, 0, 1.0]])  # denominator 1 .. 1.8 across the frame
+    assert area_ratio(steep, h, w) == pytest.approx(1.796**3, rel=1e-3)
+    assert area_ratio(np.diag([-1.0, 1, 1]), h, w) == np.inf  # a mirror
+    flow = homography_flow(steep, h, w)
+    assert fit_homography(flow, 2, 1.0, max_area_ratio=5.0) is None
+    assert fit_homography(flow, 2, 1.0, max_area_ratio=6.0) is not None
+
+
+def test_bound_outside_and_near():
+    mask = np.zeros((5, 9), bool)
+    mask[2, 1] = True
+    np.testing.assert_array_equal(near(mask, 2.0)[2], [1, 1, 1, 1, 0, 0, 0, 0, 0])
+    flow = np.zeros((5, 9, 2), np.float32)
+    flow[..., 0] = 100.0
+    prior = np.full_like(flow, 1.0)
+    out = bound_outside(flow, prior, mask, 5.0)
+    assert out[2, 1].tolist() == [100.0, 0.0]
+    np.testing.assert_allclose(np.linalg.norm(out[0, 0] - prior[0, 0]), 5.0, rtol=1e-6)
 
 
 def test_compose_chains_a_residual_and_a_base():
@@ -118,6 +153,13 @@ def test_warp_back_and_alignment_score():
     dim = (0.5 * gray1 + 60).astype(np.uint8)
     assert alignment_score(gray0, dim, shift) > 0.95
     assert alignment_score(gray0, dim, np.zeros_like(shift)) < 0.5
+    # weighted by texture: a flat half of the frame neither helps nor hurts
+    half0, half1 = gray0.copy(), dim.copy()
+    half0[:, 40:], half1[:, 40:] = 100, 100
+    weight = texture_weight(half0, 256.0)
+    assert weight[:, 52:].max() < 0.05 and weight[:, 5:30].min() > 0.5
+    weighted = alignment_score(half0, half1, shift, weight=weight)
+    assert weighted > 0.8 and weighted > alignment_score(half0, half1, shift) + 0.2
 
 
 def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
@@ -197,3 +239,91 @@ def test_contrast_normalisation_removes_local_gain_and_offset():
     assert np.abs(a[inner].astype(int) - 128).mean() > 15  # and the texture is still there
     np.testing.assert_array_equal(normalize_contrast(np.full((30, 40), 77, np.uint8), 16.0), 128)
     assert normalize_contrast(gray, 0) is gray  # 0: off
+
+
+# Pairs whose truth projsynth did not make: a smooth bend (a homography then a sinusoidal warp),
+# rendered with cv2.remap, a camera response (gamma 1/2.2), a dark surround and sensor noise.
+BEND_H = np.array([[0.93, 0.05, 12.0], [-0.03, 0.96, 8.0], [2e-4, -1e-4, 1.0]])
+
+
+def _bent_pair(picture, amp=3.0, period=150.0, seed=0):
+    """``(projected, captured, flow, valid)``: forward map ``q = H p`` then ``q + amp * sin(2 pi q / period)``."""
+    h, w = picture.shape[:2]
+    k = 2 * np.pi / period
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    p = np.stack([x, y], axis=-1)
+
+    def bend(q):
+        return q + amp * np.stack([np.sin(k * q[..., 1]), np.sin(k * q[..., 0])], axis=-1)
+
+    hp = np.concatenate([p, np.ones_like(x)[..., None]], axis=-1) @ BEND_H.T
+    fwd = bend(hp[..., :2] / hp[..., 2:])
+    q = p.copy()  # invert the bend at every camera pixel (a contraction: amp * k < 1)
+    for _ in range(50):
+        q = p - (bend(q) - q)
+    src = np.concatenate([q, np.ones_like(x)[..., None]], axis=-1) @ np.linalg.inv(BEND_H).T
+    src = (src[..., :2] / src[..., 2:]).astype(np.float32)
+    lit = (src[..., 0] >= 0) & (src[..., 0] <= w - 1) & (src[..., 1] >= 0) & (src[..., 1] <= h - 1)
+    cap = cv2.remap(picture.astype(np.float32), src[..., 0], src[..., 1], cv2.INTER_LINEAR)
+    cap = 255 * (np.where(lit[..., None], cap, 6.0) / 255) ** (1 / 2.2)
+    cap = cap + np.random.default_rng(seed).normal(0, 1.5, cap.shape)
+    valid = (fwd[..., 0] >= 0) & (fwd[..., 0] <= w - 1) & (fwd[..., 1] >= 0) & (fwd[..., 1] <= h - 1)
+    return picture, np.clip(cap, 0, 255).astype(np.uint8), (fwd - p).astype(np.float32), valid
+
+
+@pytest.fixture(scope="module")
+def picture():
+    rng = np.random.default_rng(7)
+    return cv2.resize(render_procedural("natural", "urban", (192, 256), rng), (256, 192))
+
+
+def _network_like(flow, textured, rng):
+    """What the network gives on such a pair: near the truth on the content, 12 px off beyond it."""
+    out = flow + rng.normal(0, 1.5, flow.shape).astype(np.float32)
+    out[~textured] += np.float32([9.0, -8.0])
+    return out
+
+
+def test_content_on_one_side_is_not_extrapolated_across_the_frame(picture):
+    """Issue 16: content on one side only, flat colour elsewhere (network 13.8 px, refined 133 px)."""
+    half = picture.copy()
+    half[:, 96:] = (90, 110, 130)
+    img0, img1, gt, valid = _bent_pair(half)
+    textured = np.zeros(valid.shape, bool)
+    textured[:, :96] = True
+    net = _network_like(gt, textured, np.random.default_rng(8))
+    pred, info = GeometricRefiner().predict_info(img0, img1, net)
+    err, err_net = (np.linalg.norm(f - gt, axis=-1) for f in (pred.flow, net))
+    assert pred.registered and info.evidence < 0.45
+    assert err[valid].mean() < err_net[valid].mean(), (err[valid].mean(), err_net[valid].mean())
+    far = valid & (np.arange(256) >= 150)[None, :]  # more than 50 px from any texture: no evidence
+    assert err[far].max() <= err_net[far].max() + 16.0 + 1e-3  # within free_px of the network there
+    claimed = pred.claimed & valid
+    assert not claimed[:, 150:].any(), "claims pixels with no texture near them"
+    assert claimed.sum() > 0.6 * (valid & textured).sum()
+    assert err[claimed].mean() < 1.0, err[claimed].mean()
+    assert float(info.confidence[:, 160:].max()) < 0.5
+
+
+def test_an_almost_blank_picture_is_reported_not_registered(picture):
+    """Issue 16: an almost blank picture gave 41 px (zero flow: 31 px) with every pixel valid."""
+    blank = np.full_like(picture, 140)
+    cv2.putText(blank, "ab", (30, 60), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (128, 128, 128), 1)
+    img0, img1, gt, valid = _bent_pair(blank)
+    rng = np.random.default_rng(9)
+    net = rng.uniform(-40, 40, gt.shape).astype(np.float32)  # lost
+    pred, info = GeometricRefiner().predict_info(img0, img1, net)
+    assert not pred.registered and "textureless" in pred.reason and info.hypothesis == "none"
+    assert not pred.claimed.any()
+    np.testing.assert_array_equal(pred.flow, 0)  # the projection is left where it is
+    assert np.linalg.norm(pred.flow - gt, axis=-1)[valid].mean() < np.linalg.norm(net - gt, axis=-1)[valid].mean()
+
+
+def test_a_fully_textured_bent_pair_is_claimed_almost_everywhere(picture):
+    img0, img1, gt, valid = _bent_pair(picture)
+    net = _network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
+    pred = GeometricRefiner().predict(img0, img1, net)
+    err = np.linalg.norm(pred.flow - gt, axis=-1)
+    claimed = pred.claimed & valid
+    assert pred.registered and claimed.sum() > 0.8 * valid.sum(), claimed.sum() / valid.sum()
+    assert err[claimed].mean() < 0.6, err[claimed].mean()

@@ -336,3 +336,10 @@ def test_write_atomic_all_writes_every_file_or_none(tmp_path):
         flowio.write_atomic_all([(tmp_path / "new" / "x", b"")])
     flowio.write_atomic_all([(good, b"first"), (tmp_path / "c.md", b"second")])
     assert good.read_bytes() == b"first" and (tmp_path / "c.md").read_bytes() == b"second"
+
+
+def test_extra_header_attributes_round_trip_and_cannot_replace_the_format_ones():
+    flow = np.zeros((2, 3, 2), np.float32)
+    data = encode_flow_exr(flow, np.ones((2, 3), bool), "s0", attrs={"registered": "no", "sample_id": "evil"})
+    _, _, header = decode_flow_exr(data)
+    assert header["registered"] == "no" and header["sample_id"] == "s0" and header["units"] == "px"

@@ -1,0 +1,74 @@
+"""What a method claims about its own flow: where it holds (``claimed``) and whether the pair registered.
+
+Convention: ``flow`` float32 ``(H, W, 2)``, forward, projected -> captured, pixels; ``claimed`` bool
+``(H, W)`` on the projected grid (None: every pixel); ``registered`` False when the method found no
+evidence to register the pair at all (e.g. textureless content): its flow is then a placeholder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+CONFIDENT = 0.5  # a pixel is claimed (``valid`` in predict's EXR) when its confidence is at least this
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """A flow with the pixels its method vouches for; see the module docstring."""
+
+    flow: np.ndarray
+    claimed: np.ndarray | None = None
+    registered: bool = True
+    reason: str = ""
+
+
+def as_prediction(out: np.ndarray | Prediction) -> Prediction:
+    """A method's output as a :class:`Prediction` (a bare flow claims every pixel)."""
+    return out if isinstance(out, Prediction) else Prediction(out)
+
+
+def ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """0 at or below ``lo``, 1 at or above ``hi``, linear between (``lo > hi`` decreases instead).
+
+    Example:
+        >>> ramp(np.array([0.0, 0.5, 1.0, 2.0]), 0.0, 1.0).tolist()
+        [0.0, 0.5, 1.0, 1.0]
+    """
+    return np.clip((np.asarray(x, np.float32) - lo) / (hi - lo), 0.0, 1.0)
+
+
+def pixel_confidence(
+    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float
+) -> np.ndarray:
+    """Per-pixel confidence of a flow in [0, 1]: checks on the textured pixels, spread to their
+    neighbourhood (the smooth surface model interpolates between them), nothing far from texture.
+
+    Each textured pixel passes or fails three checks (the weakest counts): the photometric check
+    ``ncc``, local NCC between the projected image and the captured image warped back by the flow
+    (0 at <= 0.3, 1 at >= 0.6); ``residual`` (px), the larger of the DIS residual still measured on
+    the rectified pair and its forward-backward inconsistency (1 at <= 2 px, 0 at >= 4 px); and
+    ``spread`` (px), how far the candidates that scored almost as well lie from this flow (1 at <= 2
+    px, 0 at >= 4 px: two answers that explain the images equally well, as on a repetitive pattern,
+    leave the pixel ambiguous). A normalised convolution (Gaussian, sigma ``radius`` px) weighted by
+    ``texture`` averages the pass marks around every pixel; the result is multiplied by how much
+    texture that window holds (0 at a texture density <= 0.05, 1 at >= 0.2), so a flat region far
+    from any texture gets 0 whatever the flow.
+
+    Args:
+        texture: the projected image's texture weight in [0, 1] (``refine.texture_weight`` with its
+            absolute floor), float ``(H, W)``.
+        ncc, residual, spread: float ``(H, W)`` as above.
+        radius: Gaussian sigma of the neighbourhood, px.
+
+    Returns:
+        float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``. The break points
+        were chosen on the validation split (docs/model.md).
+    """
+    passed = np.minimum.reduce([ramp(ncc, 0.3, 0.6), ramp(residual, 4.0, 2.0), ramp(spread, 4.0, 2.0)])
+    w = np.asarray(texture, np.float32)
+    density = cv2.GaussianBlur(w, (0, 0), radius)
+    agree = cv2.GaussianBlur(w * passed, (0, 0), radius) / np.maximum(density, 1e-6)
+    return (agree * ramp(density, 0.05, 0.2)).astype(np.float32)
