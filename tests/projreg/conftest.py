@@ -7,8 +7,8 @@ from projsynth.dataset import resolve_plan
 from projsynth.generate import generate
 
 
-def make_shards(root, *, size=(64, 96), transforms="0,21,42,63,84,105,126,147", seed=0, split="train"):
-    plan = resolve_plan(size=size, seed=seed, split=split, pairs=1, transforms=transforms, blend="paper")
+def make_shards(root, *, size=(64, 96), transforms="0,21,42,63,84,105,126,147", seed=0, split="train", blend="paper"):
+    plan = resolve_plan(size=size, seed=seed, split=split, pairs=1, transforms=transforms, blend=blend)
     generate(plan, root, shard_size=8)
     return root
 
@@ -16,6 +16,13 @@ def make_shards(root, *, size=(64, 96), transforms="0,21,42,63,84,105,126,147", 
 @pytest.fixture(scope="session")
 def tiny_train(tmp_path_factory):
     return make_shards(tmp_path_factory.mktemp("tiny") / "train")
+
+
+@pytest.fixture(scope="session")
+def tiny_physical(tmp_path_factory):
+    """Six samples of the physical blend (ambient light on a textured surface, gamma, defocus, noise)."""
+    return make_shards(tmp_path_factory.mktemp("tiny") / "physical", transforms="2,47,128", seed=4, split="test",
+                       blend="physical")
 
 
 @pytest.fixture(scope="session")

@@ -6,22 +6,12 @@ import pytest
 from projreg import ProjregError
 from projreg.bench import Method, run_bench, to_markdown
 from projreg.closedloop import UNCOMPENSATED, ClosedLoop
-from projsynth.dataset import resolve_plan
-from projsynth.generate import generate
 from projsynth.rerender import Rerenderer
 from projsynth.shards import ShardReader
 
 
-@pytest.fixture(scope="module")
-def physical(tmp_path_factory):
-    plan = resolve_plan(size=(64, 96), seed=4, split="test", pairs=1, transforms="2,47,128", blend="physical")
-    root = tmp_path_factory.mktemp("cl") / "ds"
-    generate(plan, root, shard_size=8)
-    return root
-
-
-def test_rerendering_the_projected_image_gives_the_stored_photo_back(tiny_train, physical):
-    for root in (tiny_train, physical):
+def test_rerendering_the_projected_image_gives_the_stored_photo_back(tiny_train, tiny_physical):
+    for root in (tiny_train, tiny_physical):
         reader, rerenderer = ShardReader(root), Rerenderer(root)
         for k in range(0, len(reader), 3):
             s = reader.read(k)
@@ -29,8 +19,8 @@ def test_rerendering_the_projected_image_gives_the_stored_photo_back(tiny_train,
             np.testing.assert_array_equal(view.image, s["captured"])
 
 
-def test_scores_rank_flows_by_their_error(physical):
-    reader, loop = ShardReader(physical), ClosedLoop(physical)
+def test_scores_rank_flows_by_their_error(tiny_physical):
+    reader, loop = ShardReader(tiny_physical), ClosedLoop(tiny_physical)
     for k in range(len(reader)):
         s = reader.read(k)
         flows = {"truth": s["flow"], **{f"off{d}": s["flow"] + np.float32(d) for d in (1, 3)}}

@@ -8,8 +8,6 @@ from projreg import ProjregError
 from projreg.bench import run_bench
 from projreg.cli import app
 from projreg.radiometric import calibrate, solve, to_linear
-from projsynth.dataset import resolve_plan
-from projsynth.generate import generate
 
 
 def camera(projector: np.ndarray, offset: np.ndarray, gain: np.ndarray) -> np.ndarray:
@@ -43,16 +41,8 @@ def test_calibration_refuses_mismatched_photos():
         calibrate(np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8))
 
 
-@pytest.fixture(scope="module")
-def physical(tmp_path_factory):
-    plan = resolve_plan(size=(64, 96), seed=8, split="test", pairs=1, transforms="1,46", blend="physical")
-    root = tmp_path_factory.mktemp("radio") / "ds"
-    generate(plan, root, shard_size=8)
-    return root
-
-
-def test_bench_photometric_beats_geometric_only(physical):
-    report = run_bench(physical, baselines=(), compensation=True, photometric=True)
+def test_bench_photometric_beats_geometric_only(tiny_physical):
+    report = run_bench(tiny_physical, baselines=(), compensation=True, photometric=True)
     model = report["results"][0]
     assert model["photo_psnr"] > model["geo_psnr"] and model["photo_de2000"] < model["geo_de2000"]
     assert report["results"][-1]["photo_psnr"] is None  # uncompensated: no photometric row
