@@ -16,7 +16,6 @@ training read it like a generated one. What differs:
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
@@ -24,15 +23,20 @@ import numpy as np
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
 from .dataset import Sample, plan_hash
-from .shards import MANIFEST, PLAN_FILE, assemble_manifest, library_versions, shard_name, write_json_atomic, write_shard
+from .shards import (
+    MANIFEST,
+    PLAN_FILE,
+    assemble_manifest,
+    file_sha256,
+    library_versions,
+    shard_name,
+    write_json_atomic,
+    write_shard,
+)
 from .sources import load_image
 from .structured import PATTERNS_FILE, PatternSet
 
 CAPTURED_ROLE = "captured"
-
-
-def file_digest(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def captured_samples(
@@ -74,8 +78,8 @@ def captured_samples(
             "sources": {
                 "projected": Path(proj_path).name,
                 "captured": Path(cap_path).name,
-                "projected_sha256": file_digest(proj_path),
-                "captured_sha256": file_digest(cap_path),
+                "projected_sha256": file_sha256(proj_path),
+                "captured_sha256": file_sha256(cap_path),
             },
             "camera_size": list(camera_size),
         }
@@ -98,8 +102,8 @@ def write_captured_dataset(
     """
     capture = {
         "patterns_kind": patterns.kind,
-        "patterns_sha256": file_digest(Path(patterns_dir) / PATTERNS_FILE),
-        "photos": [{"file": p.name, "sha256": file_digest(p)} for p in photos],
+        "patterns_sha256": file_sha256(Path(patterns_dir) / PATTERNS_FILE),
+        "photos": [{"file": p.name, "sha256": file_sha256(p)} for p in photos],
         "pairs": [s.params["sources"] for s in samples],
     }
     info = {
