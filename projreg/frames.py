@@ -29,7 +29,7 @@ import numpy as np
 
 from .confidence import Prediction
 
-Register = Callable[[np.ndarray, np.ndarray], np.ndarray]
+Register = Callable[[np.ndarray, np.ndarray], "np.ndarray | Prediction"]
 
 
 def frame_scale(projected_shape: tuple[int, ...], captured_shape: tuple[int, ...]) -> tuple[float, float]:

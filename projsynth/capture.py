@@ -31,6 +31,7 @@ from .photometric import BLENDS
 from .procedural import render_procedural
 from .render import alpha_field, camera_view, ground_truth, photograph
 from .rig import make_scene
+from .scene import Scene
 from .sources import fit_to_size, load_image
 from .structured import PatternSet
 from .transforms import TransformTable, draw
@@ -43,7 +44,7 @@ _CAPTURE = 2  # spawn-key word of the virtual rig's streams (0: samples, 1: sour
 class Rig:
     """One simulated projector-camera pose: what every photo of a capture shares."""
 
-    scene: object
+    scene: Scene
     photometry: dict[str, float]
     alpha: np.ndarray  # (H, W) projector transparency field
     view: tuple[np.ndarray, np.ndarray]  # camera_view(scene)
