@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO ?= demo
 
-.PHONY: clean-kernels setup test lint demo bench reference-model test-bench real-bench hard-bench real-protocol bench-decode clean
+.PHONY: device-wheels clean-kernels setup test lint demo bench reference-model test-bench real-bench hard-bench real-protocol bench-decode clean
 
 setup: $(VENV)/.installed
 
@@ -38,6 +38,12 @@ demo: setup
 
 bench: setup
 	$(PY) bench/bench_gen.py
+
+# Wheels the GPU machine lacks (its python3 3.12 has torch with CUDA and the rest): for bench/device_run.sh
+device-wheels:
+	python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+		--platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d .whl "OpenEXR==3.5.3"
+	grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo /.whl/ >> .git/info/exclude
 
 # The shipped reference model, from scratch (docs/model.md): built-in procedural images only, so every
 # photograph stays unseen. About 2 h on 2 CPU cores; re-running resumes the data and the training.

@@ -18,6 +18,10 @@ Baselines (``BASELINES``):
   threshold, ``cv2.setRNGSeed(0)`` first for determinism), then the dense flow ``H(p) - p``. When
   fewer than 4 matches survive, no homography is found, or the homography sends part of the image
   through infinity, the flow is all zeros and ``last_status`` says why.
+* ``refine-only``: the geometric refinement of :mod:`projreg.refine` without the network: its
+  hypotheses are the identity and the ``sift-ransac`` homography (the identity alone when SIFT finds
+  none), so a bench row beside the model's shows what the network adds. It claims pixels and reports
+  unregistered pairs as the refined model does.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import cv2
 import numpy as np
 
 from . import ProjregError
+from .confidence import Prediction
 
 
 class Baseline(Protocol):
@@ -36,7 +41,7 @@ class Baseline(Protocol):
 
     name: str
 
-    def predict(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray: ...
+    def predict(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray | Prediction: ...
 
 
 def to_gray(image: np.ndarray, equalize: bool = False) -> np.ndarray:
@@ -168,12 +173,30 @@ def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:
     return flow.astype(np.float32)
 
 
+class RefineOnly:
+    """The refinement started without the network: from the identity and from a SIFT homography."""
+
+    name = "refine-only"
+
+    def __init__(self, equalize: bool = False) -> None:
+        from .refine import GeometricRefiner  # refine builds on this module's homography helpers
+
+        self._sift = SiftRansac(equalize)
+        self._refiner = GeometricRefiner()
+
+    def predict(self, projected: np.ndarray, captured: np.ndarray) -> Prediction:
+        """The refined flow with the pixels it claims (:meth:`GeometricRefiner.predict`)."""
+        start = self._sift.predict(projected, captured)  # zero flow (the identity) without a homography
+        return self._refiner.predict(projected, captured, start)
+
+
 BASELINES: dict[str, Callable[[bool], Baseline]] = {
     "dis-ultrafast": lambda eq: DIS("ultrafast", eq),
     "dis-fast": lambda eq: DIS("fast", eq),
     "dis-medium": lambda eq: DIS("medium", eq),
     "farneback": Farneback,
     "sift-ransac": SiftRansac,
+    "refine-only": RefineOnly,
 }
 
 

@@ -104,12 +104,15 @@ def baseline_method(name: str, equalize: bool = False) -> Method:
     """A classical baseline by registry name (``projreg.baselines.BASELINES``).
 
     Baselines claim every pixel, except ``sift-ransac`` when it found no homography (its zero flow
-    then says "no answer"; ``last_status`` is not ``"ok"``): it claims none and is not registered.
+    then says "no answer"; ``last_status`` is not ``"ok"``): it claims none and is not registered;
+    ``refine-only`` claims what the refinement verified, as the refined model does.
     """
     baseline = make_baseline(name, equalize)
 
     def predict(img0: np.ndarray, img1: np.ndarray) -> Prediction:
         flow = baseline.predict(img0, img1)
+        if isinstance(flow, Prediction):  # refine-only claims pixels itself
+            return flow
         status = getattr(baseline, "last_status", "ok")
         if status == "ok":
             return Prediction(flow)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import traceback
@@ -82,10 +83,10 @@ def train(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Train the registration network on projsynth shards."""
-    from .train import TrainConfig
+    from .train import TrainConfig, launched_by_torchrun
     from .train import train as run_training
 
-    torchrun = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    torchrun = launched_by_torchrun()
     try:
         cfg = TrainConfig(data=[str(p) for p in data], out=str(out), val=[str(p) for p in val or []], model=model,
                           use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
@@ -97,7 +98,8 @@ def train(
         with tqdm(total=steps, desc="train", unit="step", disable=quiet, file=sys.stderr, leave=False) as bar:
             def progress(step: int, loss: float) -> None:
                 bar.n = step
-                bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
+                if math.isfinite(loss):  # the loss is read from the device once per log interval
+                    bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
                 bar.refresh()
 
             summary = run_training(cfg, resume=resume, progress=progress)

@@ -8,7 +8,7 @@ HDF5 files are opened lazily inside each worker (``projsynth.shards.ShardReader`
 A captured image of another size than the projected one (captured data) is resized to it and its
 truth converted (:mod:`projreg.frames`), so batches hold one size.
 
-Convention: ``img0`` = projected, ``img1`` = captured, ``[3, H, W]`` float32 in [0, 255];
+Convention: ``img0`` = projected, ``img1`` = captured, ``[3, H, W]`` uint8 RGB (the network converts);
 ``flow`` ``[2, H, W]`` float32 projected -> captured; ``valid`` ``[H, W]`` bool.
 """
 
@@ -81,8 +81,8 @@ class ShardDataset(Dataset):
             rng = np.random.default_rng(aug_seed)
             img0, img1, flow, valid = augment_sample(img0, img1, flow, valid, self.augment, rng)
         return {
-            "img0": torch.from_numpy(np.ascontiguousarray(img0.transpose(2, 0, 1))).float(),
-            "img1": torch.from_numpy(np.ascontiguousarray(img1.transpose(2, 0, 1))).float(),
+            "img0": torch.from_numpy(np.ascontiguousarray(img0.transpose(2, 0, 1))),  # uint8: a quarter of
+            "img1": torch.from_numpy(np.ascontiguousarray(img1.transpose(2, 0, 1))),  # the bytes of float32
             "flow": torch.from_numpy(np.ascontiguousarray(flow.transpose(2, 0, 1))),
             "valid": torch.from_numpy(np.ascontiguousarray(valid)),
         }

@@ -30,10 +30,11 @@ def sequence_loss(
         max_flow: if given, pixels with ``|flow_gt| >= max_flow`` are also ignored.
 
     Returns:
-        ``(loss, metrics)``; ``metrics["loss"]`` is the loss as a float, the others describe the last
-        prediction over the counted pixels: ``epe`` (mean end-point error), ``px1``, ``px3``, ``px5``
-        (fraction with EPE > 1, 3, 5 px) and ``n_valid``; ``epe`` and the rates are NaN when no pixel
-        counts.
+        ``(loss, metrics)``; each metric is a detached 0-d tensor on the loss's device (``float()``
+        it to read it: that waits for the device). ``metrics["loss"]`` is the loss, the others describe
+        the last prediction over the counted pixels: ``epe`` (mean end-point error), ``px1``, ``px3``,
+        ``px5`` (fraction with EPE > 1, 3, 5 px) and ``n_valid``; ``epe`` and the rates are NaN when
+        no pixel counts.
 
     Convention: flow forward projected -> captured in pixels, channel 0 = u (x), 1 = v (y).
     """
@@ -61,15 +62,20 @@ def sequence_loss(
         err = torch.where(mask, pred - gt, torch.zeros((), dtype=pred.dtype, device=pred.device)).abs()
         loss = loss + gamma ** (n - 1 - i) * err.sum() / denom
 
-    with torch.no_grad():
-        epe = (preds[-1] - gt).norm(dim=1, keepdim=True)[mask]  # [n_valid]
-        count = int(n_valid)
+    with torch.no_grad():  # no host synchronisation: the trainer reads these once per log interval
+        epe = (preds[-1] - gt).norm(dim=1, keepdim=True)  # [B, 1, H, W]
+        counted = mask.to(epe.dtype)
+        nan = torch.full((), float("nan"), dtype=epe.dtype, device=epe.device)
+
+        def share(values: torch.Tensor) -> torch.Tensor:
+            return torch.where(n_valid > 0, (values * counted).sum() / n_valid.clamp(min=1), nan)
+
         metrics = {
-            "loss": loss.item(),
-            "epe": epe.mean().item() if count else float("nan"),
-            "px1": (epe > 1).float().mean().item() if count else float("nan"),
-            "px3": (epe > 3).float().mean().item() if count else float("nan"),
-            "px5": (epe > 5).float().mean().item() if count else float("nan"),
-            "n_valid": float(count),
+            "loss": loss.detach(),
+            "epe": share(torch.where(mask, epe, torch.zeros((), dtype=epe.dtype, device=epe.device))),
+            "px1": share((epe > 1).to(epe.dtype)),
+            "px3": share((epe > 3).to(epe.dtype)),
+            "px5": share((epe > 5).to(epe.dtype)),
+            "n_valid": n_valid.to(epe.dtype),
         }
     return loss, metrics

@@ -224,11 +224,10 @@ _RESUME_KEYS = ("model", "optimizer", "scheduler", "rng", "step", "best_epe", "t
 def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None) -> dict:
     """Train ``cfg.model`` on ``cfg.data``; returns a summary (final step, last loss, best EPE)."""
     cfg.validate()
-    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
-    cuda = torch.cuda.is_available()
-    device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0))) if cuda else torch.device("cpu")
-    if distributed:
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    distributed = launched_by_torchrun()
+    device = process_device()
+    if distributed:  # NCCL wants the rank's GPU bound before the group exists (and every tensor on it)
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo", device_id=_cuda_or_none(device))
     rank, world = (dist.get_rank(), dist.get_world_size()) if distributed else (0, 1)
     # the data first: a bad --data or --val leaves --out untouched
     train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
@@ -285,7 +284,10 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
             raise ProjregError(f"--out {out}: cannot create ({e.strerror})") from e
         _write_config(out, cfg, model, resume)
     log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
-    net = torch.nn.parallel.DistributedDataParallel(model) if distributed else model
+    net = model
+    if distributed:
+        ids = [device.index] if device.type == "cuda" else None  # one GPU per process
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=ids)
     if cfg.compile:
         net = torch.compile(net)
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=cfg.amp and device.type == "cuda")
@@ -300,14 +302,13 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
                       "train_config": asdict(cfg), "version": __version__}, path)  # fmt: skip
 
     t0, seen, last_loss = time.perf_counter(), 0, float("nan")
+    stats = _Interval(device)  # device-side sums: the host waits for the GPU once per log interval
     model.train()
     while step < cfg.steps:
         batch = {k: v.to(device, non_blocking=True) for k, v in _next_batch(batches).items()}
         with autocast:
-            preds = net(batch["img0"], batch["img1"])
-        loss, stats = sequence_loss([p.float() for p in preds], batch["flow"], batch["valid"], gamma=cfg.gamma)
-        if not torch.isfinite(loss):
-            raise ProjregError(f"non-finite loss at step {step + 1}; stopped, {_last_good(last_path)}")
+            preds = net(batch["img0"], batch["img1"])  # uint8 images: the network normalises on the device
+        loss, metrics = sequence_loss([p.float() for p in preds], batch["flow"], batch["valid"], gamma=cfg.gamma)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
@@ -315,13 +316,22 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         sched.step()
         step += 1
         seen += cfg.batch_size * world
-        last_loss = float(loss.detach())
-        if step % cfg.log_every == 0 or step == cfg.steps:
+        stats.add(step, loss.detach(), metrics)
+        logging = step % cfg.log_every == 0 or step == cfg.steps
+        validating = val_ds is not None and rank == 0 and (step % cfg.val_every == 0 or step == cfg.steps)
+        if not (logging or validating or step % cfg.ckpt_every == 0):
+            if progress:
+                progress(step, last_loss)
+            continue
+        row = stats.flush(reset=logging)  # the one host sync of the interval
+        bad_step = row.pop("bad_step")
+        if bad_step:
+            raise ProjregError(f"non-finite loss at step {bad_step}; stopped, {_last_good(last_path)}")
+        last_loss = row["loss"]
+        if logging:
             rate = seen / (time.perf_counter() - t0)
-            log.write({"step": step, "kind": "train", "loss": last_loss, "epe": stats["epe"],
-                       "px1": stats["px1"], "px3": stats["px3"], "px5": stats["px5"],
-                       "lr": sched.get_last_lr()[0], "samples_per_s": rate})  # fmt: skip
-        if val_ds is not None and rank == 0 and (step % cfg.val_every == 0 or step == cfg.steps):
+            log.write({"step": step, "kind": "train", **row, "lr": sched.get_last_lr()[0], "samples_per_s": rate})
+        if validating:
             res = evaluate(model, val_ds, device=device, limit=cfg.val_samples)
             model.train()
             log.write({"step": step, "kind": "val", **{k: res[k] for k in CSV_FIELDS if k in res}})
@@ -334,7 +344,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
             progress(step, last_loss)
     summary = {"step": step, "loss": last_loss, "best_epe": None if math.isinf(best) else best}
     if distributed:
-        _record_ddp_agreement(model, out, rank, world)
+        _record_ddp_agreement(model, out, rank, world, device)
         dist.destroy_process_group()
     return summary
 
@@ -394,10 +404,72 @@ def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) ->
         raise ProjregError(f"{path}: cannot write the run config ({e})") from e
 
 
-def _record_ddp_agreement(model: torch.nn.Module, out: Path, rank: int, world: int) -> None:
+def launched_by_torchrun() -> bool:
+    """Whether ``torchrun`` started this process: it then joins a process group, even as the only rank
+    (``--nproc_per_node 1`` exercises the multi-GPU code on one GPU)."""
+    return "TORCHELASTIC_RUN_ID" in os.environ and "WORLD_SIZE" in os.environ
+
+
+def process_device() -> torch.device:
+    """This process's device: ``cuda:LOCAL_RANK`` (made current, cuDNN autotuning and TF32 matmuls on)
+    when CUDA is available, else the CPU. Under ``torchrun`` every rank gets its own GPU."""
+    if not torch.cuda.is_available():
+        return torch.device("cpu")
+    device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+    torch.cuda.set_device(device)
+    torch.backends.cudnn.benchmark = True
+    torch.backends.cuda.matmul.allow_tf32 = True
+    torch.backends.cudnn.allow_tf32 = True
+    return device
+
+
+def _cuda_or_none(device: torch.device) -> torch.device | None:
+    return device if device.type == "cuda" else None
+
+
+class _Interval:
+    """Loss statistics summed on the device between two log lines (means over the steps this process
+    ran since the previous line), and the first step whose loss was not finite; ``flush`` reads them to
+    the host (one synchronisation) and, with ``reset``, starts a new interval."""
+
+    KEYS = ("epe", "px1", "px3", "px5")
+
+    def __init__(self, device: torch.device) -> None:
+        self.device = device
+        self._reset()
+
+    def _reset(self) -> None:
+        self.sums = torch.zeros(1 + len(self.KEYS), dtype=torch.float64, device=self.device)
+        self.counts = torch.zeros_like(self.sums)
+        self.bad = torch.zeros((), dtype=torch.int64, device=self.device)
+
+    def add(self, step: int, loss: torch.Tensor, metrics: dict[str, torch.Tensor]) -> None:
+        values = torch.stack([loss.double(), *(metrics[k].double() for k in self.KEYS)])
+        finite = torch.isfinite(values)  # a batch without valid pixels has no EPE: it does not count
+        self.sums += torch.where(finite, values, 0.0)
+        self.counts += finite
+        self.bad = torch.where((self.bad == 0) & ~finite[0], step, self.bad)
+
+    def flush(self, reset: bool = True) -> dict:
+        means = (self.sums / self.counts).tolist()  # NaN where nothing counted
+        row = dict(zip(("loss", *self.KEYS), means, strict=True)) | {"bad_step": int(self.bad)}
+        if reset:
+            self._reset()
+        return row
+
+
+def checked_collective_tensor(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """``tensor`` if it lives on the process's ``device``; NCCL takes CUDA tensors only, so a collective
+    on any other device is a bug that only a multi-GPU run would show."""
+    if tensor.device != device:
+        raise RuntimeError(f"collective tensor on {tensor.device}, but this process runs on {device}")
+    return tensor
+
+
+def _record_ddp_agreement(model: torch.nn.Module, out: Path, rank: int, world: int, device: torch.device) -> None:
     """Every rank's parameter checksum, gathered to rank 0 (``ddp_params.json``): DDP keeps them equal."""
-    total = torch.tensor([float(sum(p.detach().double().sum() for p in model.parameters()))], dtype=torch.float64)
+    total = torch.stack([p.detach().double().sum() for p in model.parameters()]).sum().reshape(1).to(device)
     gathered = [torch.zeros_like(total) for _ in range(world)]
-    dist.all_gather(gathered, total)
+    dist.all_gather(gathered, checked_collective_tensor(total, device))
     if rank == 0:
         (out / "ddp_params.json").write_text(json.dumps([float(g) for g in gathered]))

@@ -70,7 +70,7 @@ def gen(
     transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).")] = None,
     table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
     shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,
-    shards: Annotated[str | None, typer.Option(help="Only these shards, e.g. 40-79 (job arrays).")] = None,
+    shards: Annotated[str | None, typer.Option(help="Only these shards: 40-79, or 3/16 (array task 3 of 16).")] = None,
     workers: Annotated[int, typer.Option(help="Worker processes.")] = 1,
     blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.")] = "paper",
     quiet: Quiet = False,

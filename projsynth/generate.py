@@ -45,17 +45,40 @@ class GenResult:
 
 
 def parse_shard_range(spec: str | None, num_shards: int) -> range:
-    """``"40-79"`` or ``"3"`` or None (all) -> shard indices, checked against the plan."""
+    """``"40-79"``, ``"3"``, ``"K/N"`` (array task K of N, from 0: its contiguous share of the plan's
+    shards, empty when there are more tasks than shards) or None (all) -> shard indices, checked
+    against the plan.
+
+    Example:
+        >>> [list(parse_shard_range(f"{k}/3", 7)) for k in range(3)]
+        [[0, 1], [2, 3], [4, 5, 6]]
+    """
     if spec is None:
         return range(num_shards)
+    if "/" in spec:
+        return _task_share(spec, num_shards)
     try:
         lo, _, hi = spec.partition("-")
         a, b = int(lo), int(hi) if hi else int(lo)
     except ValueError:
-        raise ProjsynthError(f"--shards: cannot parse {spec!r}; use e.g. 40-79") from None
+        raise ProjsynthError(f"--shards: cannot parse {spec!r}; use e.g. 40-79 or 3/16") from None
     if not 0 <= a <= b < num_shards:
         raise ProjsynthError(f"--shards: {spec} is outside 0-{num_shards - 1} (this plan has {num_shards} shards)")
     return range(a, b + 1)
+
+
+def _task_share(spec: str, num_shards: int) -> range:
+    """Task ``K`` of ``N``'s shards: shards ``[K * S // N, (K + 1) * S // N)`` of the plan's ``S``, so the
+    shares differ by at most one shard and together cover the plan once."""
+    try:
+        k, n = (int(part) for part in spec.split("/"))
+    except ValueError:
+        raise ProjsynthError(f"--shards: cannot parse {spec!r}; use TASK/TASKS, e.g. 3/16") from None
+    if n < 1:
+        raise ProjsynthError(f"--shards: {spec}: the number of tasks must be >= 1")
+    if not 0 <= k < n:
+        raise ProjsynthError(f"--shards: {spec}: the task index must be in 0..{n - 1} (0-based, as array tasks)")
+    return range(k * num_shards // n, (k + 1) * num_shards // n)
 
 
 def generate(

@@ -145,7 +145,8 @@ def test_torchrun_worker_error_is_one_line_and_exit_2(tiny_train, tmp_path):
     assert (run / "checkpoints" / "last.pt").read_bytes() == b"a run already here"
 
 
-def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tiny_train, tmp_path, monkeypatch):
+@pytest.mark.parametrize("log_every", [1, 10])  # the check reads the device once per interval
+def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tiny_train, tmp_path, monkeypatch, log_every):
     import projreg.train as tr
 
     real = tr.sequence_loss
@@ -158,7 +159,7 @@ def test_non_finite_loss_stops_and_keeps_last_good_checkpoint(tiny_train, tmp_pa
 
     monkeypatch.setattr(tr, "sequence_loss", poisoned)
     with pytest.raises(ProjregError, match="non-finite loss at step 7"):
-        train(_cfg(tiny_train, tmp_path / "r", steps=20, ckpt_every=5))
+        train(_cfg(tiny_train, tmp_path / "r", steps=20, ckpt_every=5, log_every=log_every))
     ck = load_checkpoint(tmp_path / "r" / "checkpoints" / "last.pt")
     assert ck["step"] == 5 and all(torch.isfinite(v).all() for v in ck["model"].values())
 

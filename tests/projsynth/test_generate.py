@@ -357,3 +357,20 @@ def test_reader_keeps_at_most_max_open_files(planar_ds):
     finally:
         small.close()
         full.close()
+
+
+@pytest.mark.parametrize("shards,tasks", [(7, 3), (4, 6), (64, 16), (1, 1)])
+def test_array_task_shares_cover_the_plan_once_and_differ_by_at_most_one(shards, tasks):
+    from projsynth.generate import parse_shard_range
+
+    shares = [list(parse_shard_range(f"{k}/{tasks}", shards)) for k in range(tasks)]
+    assert [j for share in shares for j in share] == list(range(shards))
+    assert max(map(len, shares)) - min(map(len, shares)) <= 1
+
+
+@pytest.mark.parametrize("spec", ["3/3", "-1/3", "a/3", "1/0", "1/2/3"])
+def test_bad_array_task_specs_are_one_line_errors(spec):
+    from projsynth.generate import parse_shard_range
+
+    with pytest.raises(ProjsynthError, match="--shards"):
+        parse_shard_range(spec, 8)
