@@ -78,7 +78,7 @@ def train(
     amp: Annotated[bool, typer.Option(help="bf16 autocast (CUDA only).")] = False,
     compile: Annotated[bool, typer.Option("--compile", help="torch.compile the model.")] = False,
     activation_checkpointing: Annotated[bool, typer.Option(help="Recompute attention in backward: less memory, "
-                                                             "~15% slower steps.")] = True,
+                                                             "~15% slower steps.")] = False,
     resume: Annotated[bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:

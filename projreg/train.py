@@ -68,7 +68,8 @@ class TrainConfig:
     ckpt_every: int = 100
     amp: bool = False  # bf16 autocast, CUDA only
     compile: bool = False
-    activation_checkpointing: bool = True  # off: ~15% faster steps, more memory (fine for small crops)
+    activation_checkpointing: bool = False  # on: ~15% slower steps, less memory (small, 256x320, batch 8:
+    # 2.9 instead of 4.0 GiB peak RSS on the CPU); for large crops or batches
 
     def validate(self) -> None:
         checks = [(self.steps >= 1, "--steps must be >= 1"), (self.batch_size >= 1, "--batch-size must be >= 1"),
