@@ -357,3 +357,14 @@ def test_reader_keeps_at_most_max_open_files(planar_ds):
     finally:
         small.close()
         full.close()
+
+
+def test_progress_is_per_sample_from_worker_processes(tmp_path):
+    """Two workers, two shards of 4: the bar hears of every sample as it is rendered, not per shard."""
+    plan = resolve_plan(size=(48, 64), seed=1, split="train", pairs=1, transforms="0-3", blend="paper")
+    ticks, totals = [], []
+    generate(plan, tmp_path / "ds", shard_size=4, workers=2, progress=ticks.append, progress_total=totals.append)
+    assert totals == [8] and ticks == [0] + [1] * 8
+    ticks.clear()
+    generate(plan, tmp_path / "ds", shard_size=4, workers=2, progress=ticks.append)  # all done: one call
+    assert ticks == [8]
