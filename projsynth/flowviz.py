@@ -20,7 +20,7 @@ FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 def font_scale(width: int) -> float:
     """A text scale readable on a picture ``width`` px wide: about 16-20 px high on 512 px."""
-    return float(np.clip(width / 700, 0.45, 1.6))
+    return float(np.clip(width / 700, 0.55, 1.6))
 
 
 def put_label(image: np.ndarray, text: str, origin: tuple[int, int], scale: float) -> None:
