@@ -13,7 +13,6 @@ import fcntl
 import multiprocessing as mp
 import os
 import queue
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -25,7 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
 from .dataset import Plan, make_sample, sample_key, source_images
-from .jit import uncompiled_kernels
+from .jit import KERNELS, uncompiled_kernels
 from .shards import (
     MANIFEST,
     PLAN_FILE,
@@ -207,32 +206,23 @@ def compile_kernels(plan: Plan, status: Callable[[str], None] | None = None) -> 
     plan calls the kernels with the argument types of the real samples (compiled code does not depend
     on the image size).
     """
-    if not uncompiled_kernels():
+    missing = uncompiled_kernels()
+    if not missing:
         return
-    announced = []
-
-    def announce() -> None:  # a warm-up that only loads cached code (or compiles a kernel or two) is silent
-        announced.append(True)
-        if status:
-            status(f"compiling kernels (first run, ~{COMPILE_SECONDS} s)...")
-
-    notice = threading.Timer(2.0, announce)
-    notice.start()
+    first_run = len(missing) == len(KERNELS)  # else a kernel or two that earlier plans did not call: quick
+    if status and first_run:
+        status(f"compiling kernels (first run, ~{COMPILE_SECONDS} s)...")
     t0 = time.perf_counter()
     tiny = dataclasses.replace(plan, size=(32, 32))
     first: dict[tuple[str, str], int] = {}
     for k in range(len(tiny.transforms)):  # the first pair, first role: every transform once
         cfg = tiny.table.configs[sample_key(tiny, k)[2]]
         first.setdefault((cfg.family, cfg.condition), k)
-    try:
-        with single_threaded():
-            images = source_images(tiny, 0)
-            for k in first.values():
-                make_sample(tiny, k, images)
-    finally:
-        notice.cancel()
-    notice.join()
-    if status and announced:
+    with single_threaded():
+        images = source_images(tiny, 0)
+        for k in first.values():
+            make_sample(tiny, k, images)
+    if status and first_run:
         status(f"kernels compiled in {time.perf_counter() - t0:.0f} s (cached for the next runs)")
 
 
