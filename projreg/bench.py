@@ -230,7 +230,7 @@ def run_bench(
             desired view (``geo_*``, ``photo_*``).
         sheet: with ``compensation``, a list that receives a contact-sheet row (``closedloop.sheet_row``)
             for each of the first ``SHEET_ROWS`` samples: the first method's pictures.
-        progress: called ``(done, total)`` after each sample.
+        progress: called ``(done, total)`` once the inputs are checked (``done`` 0), then after each sample.
 
     Returns:
         The report: ``{"dataset": {...}, "reference_model": str | None, "results": [...]}``, one
@@ -261,6 +261,8 @@ def run_bench(
         first = _read(reader, indices[0])
         for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
             register_any_size(m.predict, first["projected"], first["captured"])
+        if progress:
+            progress(0, len(indices))  # the bar from here: the inputs are good
         for done, k in enumerate(indices, start=1):
             s = first if done == 1 else _read(reader, k)
             groups = sample_groups(s["params"])

@@ -10,14 +10,14 @@ from pathlib import Path
 from typing import Annotated, NoReturn
 
 import typer
-from tqdm import tqdm
 
-from projsynth.cli import output_path
+from projsynth.cli import PLAIN_HELP, Bar, Command, MaxFlow, is_rank0, output_path
+from projsynth.cores import available_cores
 
 from . import ProjregError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Train, benchmark and apply the SSJM projector-camera registration network.")  # fmt: skip
+app = typer.Typer(**PLAIN_HELP, help="Train, benchmark and apply the SSJM projector-camera registration network.")
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
 
 
 @app.callback()
@@ -28,6 +28,20 @@ def _root() -> None:
 def _fail(e: Exception) -> typer.Exit:
     typer.echo(f"projreg: error: {e}", err=True)
     return typer.Exit(2)
+
+
+def _torch_threads() -> None:
+    """torch's intra-op pool sized to the cores this process may use (an explicit OMP_NUM_THREADS,
+    as torchrun sets for several ranks on one machine, is kept)."""
+    import torch
+
+    if "OMP_NUM_THREADS" not in os.environ:
+        torch.set_num_threads(available_cores())
+
+
+def _figure(x: float | None, unit: str = "") -> str:
+    """A metric as people read it: 3 significant digits (``32.6``, ``0.123``), ``–`` when absent."""
+    return "–" if x is None else f"{x:.3g}{unit}"
 
 
 def _end_torchrun_worker(code: int) -> NoReturn:
@@ -55,38 +69,46 @@ def _parse_crop(text: str) -> tuple[int, int] | None:
     return h, w
 
 
-@app.command()
+@app.command(cls=Command)
 def train(
-    data: Annotated[list[Path], typer.Option(help="Training dataset directory (repeat for several).")],
-    out: Annotated[Path, typer.Option(help="Run directory.", parser=output_path)],
-    val: Annotated[list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).")] = None,
-    model: Annotated[str, typer.Option(help="small or base.")] = "small",
+    data: Annotated[list[Path], typer.Option(help="Training dataset directory (repeat for several).",
+                                             metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="Run directory.", parser=output_path, metavar="RUN")],
+    val: Annotated[list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).",
+                                                  metavar="DIR")] = None,
+    model: Annotated[str, typer.Option(help="small or base.", metavar="small|base")] = "small",
     no_ssjm: Annotated[bool, typer.Option("--no-ssjm", help="Build the ablation without SSJM.")] = False,
     steps: Annotated[int, typer.Option(help="Stop after this many optimiser steps (resume to go further).")] = 15000,
     schedule_steps: Annotated[int, typer.Option(help="Length of the OneCycle schedule (paper: 15000).")] = 15000,
     warmup_steps: Annotated[int, typer.Option(help="Linear warm-up steps of the schedule.")] = 100,
-    batch_size: Annotated[int, typer.Option(help="Samples per step (per process under torchrun).")] = 8,
+    batch_size: Annotated[int, typer.Option(help="Samples per step (per process under torchrun).", metavar="B")] = 8,
     lr: Annotated[float, typer.Option(help="Peak learning rate of the OneCycle schedule.")] = 4e-4,
-    seed: Annotated[int, typer.Option(help="Seed of initialisation, sample order and augmentation.")] = 0,
-    crop: Annotated[str, typer.Option(help="Training crop HxW, or none for full frames.")] = "256x320",
-    workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = 2,
+    seed: Annotated[int, typer.Option(help="Seed of initialisation, sample order and augmentation.",
+                                      metavar="S")] = 0,
+    crop: Annotated[str, typer.Option(help="Training crop HxW, or none for full frames.",
+                                      metavar="HxW|none")] = "256x320",
+    workers: Annotated[int, typer.Option(help="DataLoader worker processes.", metavar="K")] = 2,
     val_every: Annotated[int, typer.Option(help="Validate every N steps.")] = 500,
     val_samples: Annotated[int, typer.Option(help="Validate on N samples spread over --val (best.pt is chosen "
                                                   "on them).")] = 64,
     ckpt_every: Annotated[int, typer.Option(help="Write last.pt every N steps.")] = 100,
     log_every: Annotated[int, typer.Option(help="Log a metrics row every N steps.")] = 10,
-    amp: Annotated[bool, typer.Option(help="bf16 autocast (CUDA only).")] = False,
+    amp: Annotated[bool, typer.Option(help="bf16 autocast (CUDA only; default off).", show_default=False)] = False,
     compile: Annotated[bool, typer.Option("--compile", help="torch.compile the model.")] = False,
     activation_checkpointing: Annotated[bool, typer.Option(help="Recompute attention in backward: less memory, "
-                                                             "~15% slower steps.")] = False,
-    resume: Annotated[bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+                                                             "~15% slower steps (default off).",
+                                                        show_default=False)] = False,
+    resume: Annotated[bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly (default off).",
+                                         show_default=False)] = False,
+    quiet: Quiet = False,
 ) -> None:
     """Train the registration network on projsynth shards."""
     from .train import TrainConfig, launched_by_torchrun
     from .train import train as run_training
 
     torchrun = launched_by_torchrun()
+    quiet = quiet or not is_rank0()  # under torchrun, rank 0 speaks for the run
+    _torch_threads()
     try:
         cfg = TrainConfig(data=[str(p) for p in data], out=str(out), val=[str(p) for p in val or []], model=model,
                           use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
@@ -95,14 +117,13 @@ def train(
                           ckpt_every=ckpt_every,
                           log_every=log_every, amp=amp, compile=compile,
                           activation_checkpointing=activation_checkpointing)  # fmt: skip
-        with tqdm(total=steps, desc="train", unit="step", disable=quiet, file=sys.stderr, leave=False) as bar:
+        with Bar("train", quiet, unit="step") as bar, _ValBar(quiet) as val_bar:
             def progress(step: int, loss: float) -> None:
-                bar.n = step
+                bar.done(step, steps)
                 if math.isfinite(loss):  # the loss is read from the device once per log interval
-                    bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
-                bar.refresh()
+                    bar.bar.set_postfix(loss=f"{loss:.3f}", refresh=True)
 
-            summary = run_training(cfg, resume=resume, progress=progress)
+            summary = run_training(cfg, resume=resume, progress=progress, val_progress=val_bar)
     except ProjregError as e:
         failure = _fail(e)
         if torchrun:
@@ -113,17 +134,56 @@ def train(
             traceback.print_exc()
             _end_torchrun_worker(1)
         raise
-    if not quiet:
-        typer.echo(f"{out}: step {summary['step']}, loss {summary['loss']:.4f}, best val EPE {summary['best_epe']}",
-                   err=True)  # fmt: skip
+    code = 0
+    if summary["interrupted"]:
+        code = 130 if summary["interrupted"] == "SIGINT" else 143  # 128 + the signal, as a shell reports it
+        if is_rank0():  # even with --quiet: where the run stands must not pass unnoticed
+            typer.echo(f"projreg: {summary['interrupted']}: stopped at step {summary['step']}; checkpoint "
+                       f"{summary['checkpoint']} written; the same command with --resume continues",
+                       err=True)  # fmt: skip
+    elif not quiet:
+        typer.echo(train_summary(out, summary), err=True)
     if torchrun:
-        _end_torchrun_worker(0)
+        _end_torchrun_worker(code)
+    if code:
+        raise typer.Exit(code)
 
 
-@app.command()
+def train_summary(out: Path, summary: dict) -> str:
+    """The line a finished ``train`` prints: its step, last loss and best validation EPE, rounded."""
+    best = "no validation" if summary["best_epe"] is None else f"best val EPE {_figure(summary['best_epe'], ' px')}"
+    if not summary["steps_run"]:
+        return f"{out}: already at step {summary['step']} (--steps); nothing to train, {best}"
+    return f"{out}: step {summary['step']}, loss {_figure(summary['loss'])}, {best}"
+
+
+class _ValBar:
+    """One bar per validation, ``(done, total)`` samples; gone once the validation ends."""
+
+    def __init__(self, quiet: bool):
+        self.quiet, self.bar = quiet, None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            self.bar = Bar("validate", self.quiet)
+        self.bar.done(done, total)
+        if done == total:
+            self.bar.__exit__()
+            self.bar = None
+
+    def __enter__(self) -> _ValBar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.__exit__()
+
+
+@app.command(cls=Command)
 def export(
-    checkpoint: Annotated[Path, typer.Option(help="Checkpoint written by `projreg train` (last.pt or best.pt).")],
-    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.", parser=output_path)],
+    checkpoint: Annotated[Path, typer.Option(help="Checkpoint written by `projreg train` (last.pt or best.pt).",
+                                             metavar="CKPT")],
+    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.", parser=output_path, metavar="FILE")],
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance (what bench/predict need)."""
     from .train import export_checkpoint
@@ -139,26 +199,28 @@ COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensati
 PHOTOMETRIC_HELP = "With --compensation: geometric vs geometric + photometric against the desired view."
 
 
-@app.command()
+@app.command(cls=Command)
 def bench(
-    data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).")],
+    data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).", metavar="DIR")],
     model: Annotated[list[Path] | None, typer.Option(help="Checkpoint, or `reference` (repeatable); "
-                                                     "default: the reference.")] = None,
+                                                     "default: the reference.", metavar="CKPT")] = None,
     baselines: Annotated[str | None, typer.Option(help="Comma list, or none (default: dis-fast,dis-medium,"
-                                                      "farneback,sift-ransac).", show_default=False)] = None,
+                                                      "farneback,sift-ransac).", show_default=False,
+                                                 metavar="LIST")] = None,
     equalize: Annotated[bool, typer.Option("--equalize", help="Equalise histograms for the baselines.")] = False,
     refine: Annotated[str, typer.Option(help="Geometric refinement after each model: on, off, or both "
-                                             "(two rows: NAME refined, NAME-raw).")] = "on",
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON.")] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.")] = None,
+                                             "(two rows: NAME refined, NAME-raw).", metavar="on|off|both")] = "on",
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON.", metavar="FILE")] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", metavar="FILE")] = None,
     fail_above: Annotated[list[str] | None, typer.Option(help="[NAME:]METRIC=VALUE gate on models (repeatable; "
-                                                              "NAME: that model only).")] = None,
+                                                              "NAME: that model only).",
+                                                    metavar="[NAME:]METRIC=VALUE")] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
-                                                    "samples.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+                                                    "samples.", metavar="FILE.png")] = None,
+    quiet: Quiet = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
     from . import bench as lib
@@ -174,14 +236,11 @@ def bench(
             names = list(lib.DEFAULT_BASELINES)
         else:
             names = [] if baselines.strip().lower() == "none" else parse_baselines(baselines)
-        with tqdm(desc="bench", unit="pair", disable=quiet, file=sys.stderr, leave=False) as bar:
-            def progress(done: int, total: int) -> None:
-                bar.total = total
-                bar.update(done - bar.n)
-
+        _torch_threads()
+        with Bar("bench", quiet, unit="pair") as bar:
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
                                    limit=limit, compensation=compensation, photometric=photometric,
-                                   sheet=rows, progress=progress)  # fmt: skip
+                                   sheet=rows, progress=bar.done)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
                           sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
@@ -197,29 +256,30 @@ def bench(
         raise typer.Exit(1)
 
 
-@app.command()
+@app.command(cls=Command)
 def predict(
-    projected: Annotated[Path, typer.Option(help="Projected image, or a folder of them.")],
-    captured: Annotated[Path, typer.Option(help="Captured image, or a folder (same relative names).")],
-    out: Annotated[Path, typer.Option(help="Flow EXR file, or output folder (folder mode).")],
-    viz: Annotated[Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).")] = None,
+    projected: Annotated[Path, typer.Option(help="Projected image, or a folder of them.", metavar="IMG|DIR")],
+    captured: Annotated[Path, typer.Option(help="Captured image, or a folder (same relative names).",
+                                           metavar="IMG|DIR")],
+    out: Annotated[Path, typer.Option(help="Flow EXR file, or output folder (folder mode).", metavar="FILE|DIR")],
+    viz: Annotated[Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).",
+                                            metavar="FILE|DIR")] = None,
     model: Annotated[Path | None, typer.Option(help="Checkpoint, or `reference`; default: the shipped "
-                                                    "reference model.")] = None,
+                                                    "reference model.", metavar="CKPT")] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
-    refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md).")] = True,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md; "
+                                              "default on).", show_default=False)] = True,
+    max_flow: MaxFlow = None,
+    quiet: Quiet = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
     from .predict import predict as run_predict
 
     try:
-        with tqdm(desc="predict", unit="pair", disable=quiet, file=sys.stderr, leave=False) as bar:
-            def progress(done: int, total: int) -> None:
-                bar.total = total
-                bar.update(done - bar.n)
-
+        _torch_threads()
+        with Bar("predict", quiet, unit="pair") as bar:
             written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  refine=refine, progress=progress)  # fmt: skip
+                                  refine=refine, progress=bar.done, max_flow=max_flow)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
@@ -230,16 +290,17 @@ def predict(
         typer.echo(f"{len(written)} flow file(s) written: {out}", err=True)
 
 
-@app.command()
+@app.command(cls=Command)
 def compensate(
-    content: Annotated[Path, typer.Option(help="Desired camera view (image).")],
-    flow: Annotated[Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).")],
-    out: Annotated[Path, typer.Option(help="Projector image to write (PNG).")],
+    content: Annotated[Path, typer.Option(help="Desired camera view (image).", metavar="IMG")],
+    flow: Annotated[Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).",
+                                       metavar="FILE.exr")],
+    out: Annotated[Path, typer.Option(help="Projector image to write (PNG).", metavar="FILE.png")],
     fill: Annotated[int, typer.Option(help="Grey level of projector pixels without correspondence.")] = 0,
     photometric: Annotated[bool, typer.Option("--photometric", help="Also correct colour and light "
                                               "(needs --white and --black).")] = False,
-    white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.")] = None,
-    black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.")] = None,
+    white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
+    black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
     gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
 ) -> None:
     """Pre-warp content: the projector image that makes the camera see CONTENT undistorted."""
@@ -249,9 +310,13 @@ def compensate(
         if photometric and (white is None or black is None):
             raise ProjregError("--photometric needs --white and --black: the camera's photos of a full-white and "
                                "a full-black projection")  # fmt: skip
-        compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
+        result = compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
     except ProjregError as e:
         raise _fail(e) from None
+    h, w = result["size"]
+    how = "geometric + photometric" if photometric else "geometric"
+    typer.echo(f"{out}: {w}x{h} projector image ({how}), content on {result['lit']:.1%} of its pixels, "
+               f"--fill {fill} elsewhere", err=True)  # fmt: skip
 
 
 def main() -> None:

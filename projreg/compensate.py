@@ -70,8 +70,12 @@ def compensate_files(
     fill: int = 0,
     photometric: tuple[Path, Path] | None = None,
     gamma: float = 2.2,
-) -> None:
+) -> dict:
     """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG).
+
+    Returns:
+        ``size`` ``(H, W)`` of the projector image and ``lit``, the share of its pixels that show
+        content (a valid, finite flow; the others get ``fill``).
 
     ``photometric``: the camera's photos ``(white, black)`` of a full-white and a full-black
     projection; the desired view is then also corrected for the surface's colour and light
@@ -99,3 +103,5 @@ def compensate_files(
     except ProjregError as e:
         raise ProjregError(f"--flow {flow}: {e}") from e
     write_png(Path(out), projector)
+    lit = np.asarray(valid, bool) & np.isfinite(f).all(axis=-1)
+    return {"size": tuple(projector.shape[:2]), "lit": float(lit.mean())}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -33,12 +35,19 @@ def predict_flow(model: torch.nn.Module, img0: np.ndarray, img1: np.ndarray, dev
 
 
 @torch.no_grad()
-def evaluate(model: torch.nn.Module, dataset: ShardDataset, *, device: torch.device, limit: int | None = None) -> dict:
-    """Pooled metrics of the last prediction over ``limit`` samples spread evenly (all if None)."""
+def evaluate(model: torch.nn.Module, dataset: ShardDataset, *, device: torch.device, limit: int | None = None,
+             progress: Callable[[int, int], None] | None = None) -> dict:
+    """Pooled metrics of the last prediction over ``limit`` samples spread evenly (all if None);
+    ``progress(done, total)`` before the first sample and after each."""
     model.eval()
     acc = EPEAccumulator()
-    for i in sample_indices(len(dataset), limit):
+    indices = sample_indices(len(dataset), limit)
+    for done, i in enumerate(indices):
+        if progress:
+            progress(done, len(indices))
         s = dataset[i]
         pred = model(s["img0"][None].to(device), s["img1"][None].to(device))[-1][0]
         acc.add(pred.permute(1, 2, 0).float().cpu().numpy(), s["flow"].permute(1, 2, 0).numpy(), s["valid"].numpy())
+    if progress:
+        progress(len(indices), len(indices))
     return acc.result()

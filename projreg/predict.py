@@ -27,7 +27,8 @@ import torch
 
 from projsynth import ProjsynthError, flowio
 from projsynth.export import png_bytes
-from projsynth.flowio import encode_flow_exr, flow_to_color, write_atomic_all
+from projsynth.flowio import encode_flow_exr, write_atomic_all
+from projsynth.flowviz import flow_picture, scale_of
 from projsynth.sources import list_images, load_image
 
 from . import ProjregError
@@ -205,6 +206,7 @@ def predict(
     refine: bool = True,
     device: torch.device | None = None,
     progress: Callable[[int, int], None] | None = None,
+    max_flow: float | None = None,
 ) -> list[Predicted]:
     """Predict the flow of one pair of files, or of every pair of two folders.
 
@@ -218,12 +220,19 @@ def predict(
             pair's own resolution; the EXR's ``valid`` is then its confidence >= ``CONFIDENT``.
         device: default CUDA when available, else CPU.
         progress: called ``(done, total)`` after each pair.
+        max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
+            largest (``projsynth.flowviz.flow_picture``, with its legend).
 
     Returns:
         One :class:`Predicted` per pair, in pair order (the caller warns about unregistered pairs).
     """
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
+    if max_flow is not None:
+        try:
+            scale_of(np.zeros((1, 1, 2), np.float32), None, max_flow)
+        except ProjsynthError as e:
+            raise ProjregError(str(e)) from None
     jobs = plan_jobs(projected, captured, out, viz)
     checkpoint = resolve_checkpoint(model)
     refuse_overwriting_inputs([(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
@@ -250,7 +259,7 @@ def predict(
         try:
             files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
             if job.viz is not None:
-                files.append((job.viz, png_bytes(job.viz, flow_to_color(pred.flow, valid))))
+                files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
             write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
         except ProjsynthError as e:
             raise ProjregError(str(e)) from e

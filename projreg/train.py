@@ -21,7 +21,9 @@ import math
 import os
 import platform
 import random
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -222,8 +224,28 @@ class _Log:
 _RESUME_KEYS = ("model", "optimizer", "scheduler", "rng", "step", "best_epe", "train_config")
 
 
-def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None) -> dict:
-    """Train ``cfg.model`` on ``cfg.data``; returns a summary (final step, last loss, best EPE)."""
+def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None,
+          val_progress: Callable[[int, int], None] | None = None) -> dict:
+    """Train ``cfg.model`` on ``cfg.data``.
+
+    SIGINT or SIGTERM (Ctrl-C, a scheduler's stop) ends the run after the step in flight, with
+    ``last.pt`` written at that step (under torchrun the ranks agree at the next logged step); a
+    second SIGINT stops at once, without a checkpoint.
+
+    Args:
+        progress: ``(step, loss)`` after each step.
+        val_progress: ``(done, total)`` samples of each validation.
+
+    Returns:
+        ``step`` (final), ``loss`` (last step's; None when no step ran), ``best_epe`` (None without
+        validation), ``steps_run`` (in this call), ``interrupted`` (the signal's name, or None).
+    """
+    with _StopSignal() as stop:
+        return _train(cfg, resume, progress, val_progress, stop)
+
+
+def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None] | None,
+           val_progress: Callable[[int, int], None] | None, stop: _StopSignal) -> dict:
     cfg.validate()
     distributed = launched_by_torchrun()
     device = process_device()
@@ -275,7 +297,8 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         step, best = int(ck["step"]), float(ck["best_epe"])
     sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
     loader = DataLoader(train_ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.workers,
-                        pin_memory=device.type == "cuda", drop_last=True)  # fmt: skip
+                        pin_memory=device.type == "cuda", drop_last=True,
+                        worker_init_fn=_ignore_interrupts)  # fmt: skip
     batches = iter(loader)
     batches = itertools.chain([_next_batch(batches)], batches)  # a bad first batch leaves --out untouched
     if rank == 0:
@@ -302,11 +325,14 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
                       "scheduler": sched.state_dict(), "rng": _rng_state(), "step": step, "best_epe": best,
                       "train_config": asdict(cfg), "version": __version__}, path)  # fmt: skip
 
-    t0, seen, last_loss = time.perf_counter(), 0, float("nan")
+    t0, seen, last_loss, start = time.perf_counter(), 0, float("nan"), step
     stats = _Interval(device)  # device-side sums: the host waits for the GPU once per log interval
     model.train()
-    while step < cfg.steps:
-        batch = {k: v.to(device, non_blocking=True) for k, v in _next_batch(batches).items()}
+    while step < cfg.steps and not stop.agreed(step, distributed, cfg.log_every, device):
+        batch = _next_batch_unless_stopped(batches, stop)
+        if batch is None:
+            break
+        batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         with autocast:
             preds = net(batch["img0"], batch["img1"])  # uint8 images: the network normalises on the device
         loss, metrics = sequence_loss([p.float() for p in preds], batch["flow"], batch["valid"], gamma=cfg.gamma)
@@ -333,7 +359,7 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
             rate = seen / (time.perf_counter() - t0)
             log.write({"step": step, "kind": "train", **row, "lr": sched.get_last_lr()[0], "samples_per_s": rate})
         if validating:
-            res = evaluate(model, val_ds, device=device, limit=cfg.val_samples)
+            res = evaluate(model, val_ds, device=device, limit=cfg.val_samples, progress=val_progress)
             model.train()
             log.write({"step": step, "kind": "val", **{k: res[k] for k in CSV_FIELDS if k in res}})
             if res["epe"] is not None and res["epe"] < best:
@@ -343,11 +369,70 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
             checkpoint(last_path)
         if progress:
             progress(step, last_loss)
-    summary = {"step": step, "loss": last_loss, "best_epe": None if math.isinf(best) else best}
+    if stop.signal is not None and rank == 0:
+        checkpoint(last_path)  # the state after the last finished step: --resume continues from it
+    summary = {"step": step, "loss": None if step == start else last_loss,
+               "best_epe": None if math.isinf(best) else best, "steps_run": step - start,
+               "interrupted": stop.signal, "checkpoint": str(last_path)}  # fmt: skip
     if distributed:
         _record_ddp_agreement(model, out, rank, world, device)
         dist.destroy_process_group()
     return summary
+
+
+class _StopSignal:
+    """SIGINT/SIGTERM during training: note it, let the step in flight finish, then stop with a checkpoint.
+
+    The handlers are installed for the ``with`` block (main thread only: signals are delivered there)
+    and the previous ones restored after it. A second SIGINT raises KeyboardInterrupt at once.
+    """
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self.previous: dict[int, object] = {}
+
+    def __enter__(self) -> _StopSignal:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.previous[sig] = signal.signal(sig, self._note)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+
+    def _note(self, signum: int, frame: object) -> None:
+        if self.signal is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signal = signal.Signals(signum).name
+
+    def agreed(self, step: int, distributed: bool, every: int, device: torch.device) -> bool:
+        """Whether to stop before the next step. Under torchrun the ranks agree (a MAX all-reduce) at
+        every ``every``-th step only, so that no rank stops alone and none pays a sync per step."""
+        if not distributed:
+            return self.signal is not None
+        if step % every:
+            return False
+        flag = torch.tensor([float(self.signal is not None)], device=device)
+        dist.all_reduce(checked_collective_tensor(flag, device), op=dist.ReduceOp.MAX)
+        if flag.item() and self.signal is None:
+            self.signal = "SIGTERM (another rank)"
+        return bool(flag.item())
+
+
+def _ignore_interrupts(worker_id: int) -> None:
+    """DataLoader workers leave Ctrl-C to the main process, which finishes its step and checkpoints."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _next_batch_unless_stopped(batches, stop: _StopSignal) -> dict | None:
+    """The next batch; None when a stop signal has also ended the loader's workers."""
+    try:
+        return _next_batch(batches)
+    except (RuntimeError, ProjregError):
+        if stop.signal is None:
+            raise
+        return None
 
 
 def _non_finite(model: torch.nn.Module, opt: torch.optim.Optimizer) -> str | None:

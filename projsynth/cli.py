@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from functools import partial
 from pathlib import Path
@@ -15,6 +16,7 @@ from typer.core import TyperCommand
 
 from . import ProjsynthError
 from .capture import capture as capture_scene
+from .cores import use_available_cores
 from .dataset import parse_size, resolve_plan
 from .decode import decode_folder
 from .export import export as export_samples
@@ -25,12 +27,36 @@ from .transforms import load_table, table_to_toml
 from .verify import inspect as inspect_dataset
 from .verify import verify as verify_dataset
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Reproducible projector-camera pairs with exact ground-truth flow.")  # fmt: skip
+
+class Command(TyperCommand):
+    """Help that reads at 80 columns: click's plain layout (rich's table cuts long option names and
+    defaults) and every value shown as the docs name it (``DIR``, ``FILE``, ``N``), never Typer's
+    ``<list[Path]>`` or ``<bool>``. A value without an explicit ``metavar`` is named by its type; an
+    argument shows as its metavar alone (``DIR``, not Typer's ``{root}`` and ``<path>``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for param in self.params:
+            if param.metavar is None and not getattr(param, "is_flag", False):
+                element = param.bare_type().removeprefix("list[").removesuffix("]")
+                param.metavar = _METAVARS.get(element, element.upper())
+            if param.param_type_name == "argument":
+                param._usage_display_name = partial(str, param.metavar)
+                param.display_type_rich = lambda ctx: None
+
+
+_METAVARS = {"int": "N", "float": "X", "str": "TEXT", "Path": "PATH"}
+PLAIN_HELP = {"rich_markup_mode": None, "add_completion": False, "no_args_is_help": True,
+              "pretty_exceptions_enable": False}  # fmt: skip
+
+app = typer.Typer(**PLAIN_HELP, help="Reproducible projector-camera pairs with exact ground-truth flow.")
 
 cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our own errors name the file
 
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
+MaxFlow = Annotated[float | None, typer.Option(help="Flow colours saturate at this magnitude in px, the "
+                                                    "same for every picture (default: each picture's largest).",
+                                               metavar="PX")]  # fmt: skip
 
 
 def output_path(text: str) -> Path:
@@ -46,33 +72,83 @@ def _fail(e: Exception) -> typer.Exit:
     return typer.Exit(2)
 
 
-def _bar(total: int | None, desc: str, quiet: bool) -> tqdm:
-    return tqdm(total=total, desc=desc, unit="sample", disable=quiet, file=sys.stderr, leave=False)
+def _status(line: str) -> None:
+    typer.echo(f"projsynth: {line}", err=True)
 
 
-def _set_total(bar: tqdm, n: int) -> None:
-    bar.total = n
-    bar.refresh()
+class Bar:
+    """A tqdm bar on stderr, drawn only when the work starts (its first ``total`` or ``update``).
+
+    A command whose input is refused before any work (a missing dataset, a bad option) prints its one
+    error line with no empty bar before it. ``--quiet``, and every torchrun rank but 0, draw none.
+    """
+
+    def __init__(self, desc: str, quiet: bool, unit: str = "sample", total: int | None = None):
+        self.kwargs = {"desc": desc, "unit": unit, "disable": quiet or not is_rank0(), "file": sys.stderr,
+                       "leave": False, "dynamic_ncols": True, "total": total}  # fmt: skip
+        self.bar: tqdm | None = None
+
+    def _get(self) -> tqdm:
+        if self.bar is None:
+            self.bar = tqdm(**self.kwargs)
+        return self.bar
+
+    def total(self, n: int) -> None:
+        """Set the total (the bar is drawn from here on)."""
+        if self.bar is None:
+            self.kwargs["total"] = n
+        bar = self._get()
+        bar.total = n
+        bar.refresh()
+
+    def update(self, n: int = 1) -> None:
+        self._get().update(n)
+
+    def done(self, done: int, total: int) -> None:
+        """``(done, total)`` progress, as the library's ``progress`` callbacks report it."""
+        if self.bar is None:
+            self.kwargs["total"] = total
+        bar = self._get()
+        bar.total = total
+        bar.update(done - bar.n)
+
+    def __enter__(self) -> Bar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def is_rank0() -> bool:
+    """False in every torchrun worker but rank 0: only rank 0 draws bars and prints summaries."""
+    return os.environ.get("RANK", "0") == "0"
 
 
 SPLIT_HELP = "train, val or test (disjoint source images), or all (every image: a held-out folder)."
 
 
-@app.command()
+@app.command(cls=Command)
 def gen(
-    out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).", parser=output_path)],
-    natural: Annotated[Path | None, typer.Option(help="Folder of natural images (recursive).")] = None,
-    generated: Annotated[Path | None, typer.Option(help="Folder of generated/illustration images.")] = None,
+    out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).", parser=output_path,
+                                      metavar="DIR")],
+    natural: Annotated[Path | None, typer.Option(help="Folder of natural images (recursive).", metavar="DIR")] = None,
+    generated: Annotated[Path | None, typer.Option(help="Folder of generated/illustration images.",
+                                                   metavar="DIR")] = None,
     pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
-    size: Annotated[str, typer.Option(help="Image size HxW.")] = "384x512",
-    seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
-    split: Annotated[str, typer.Option(help=SPLIT_HELP)] = "train",
-    transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).")] = None,
-    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
+    size: Annotated[str, typer.Option(help="Image size HxW.", metavar="HxW")] = "384x512",
+    seed: Annotated[int, typer.Option(help="Seed of every random draw.", metavar="S")] = 0,
+    split: Annotated[str, typer.Option(help=SPLIT_HELP, metavar="SPLIT")] = "train",
+    transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).",
+                                                   metavar="SPEC")] = None,
+    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.",
+                                               metavar="FILE.toml")] = None,
     shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,
-    shards: Annotated[str | None, typer.Option(help="Only these shards: 40-79, or 3/16 (array task 3 of 16).")] = None,
-    workers: Annotated[int, typer.Option(help="Worker processes.")] = 1,
-    blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.")] = "paper",
+    shards: Annotated[str | None, typer.Option(help="Only these shards: 40-79, or 3/16 (array task 3 of 16).",
+                                               metavar="A-B|K/N")] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes.", metavar="K")] = 1,
+    blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.",
+                                       metavar="paper|physical")] = "paper",
     quiet: Quiet = False,
 ) -> None:
     """Generate shards of (projected, captured, flow) samples."""
@@ -81,9 +157,9 @@ def gen(
                             blend=blend, table_path=table, natural=natural, generated=generated)  # fmt: skip
         for line in plan.skipped:
             typer.echo(f"projsynth: warning: skipped {line}", err=True)
-        with _bar(plan.num_samples, "gen", quiet) as bar:  # --shards: sized to the selected shards
+        with Bar("gen", quiet) as bar:  # --shards: sized to the selected shards
             result = generate(plan, out, shard_size=shard_size, shards=shards, workers=workers, progress=bar.update,
-                              progress_total=partial(_set_total, bar))  # fmt: skip
+                              progress_total=bar.total, status=_status)  # fmt: skip
     except ProjsynthError as e:
         raise _fail(e) from None
     if not quiet:
@@ -92,8 +168,8 @@ def gen(
                    f"{result.num_shards} in the plan; {state}", err=True)  # fmt: skip
 
 
-@app.command("merge")
-def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.")]) -> None:
+@app.command("merge", cls=Command)
+def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")]) -> None:
     """Write manifest.json once every shard exists (after a job array)."""
     try:
         manifest = merge(root)
@@ -102,12 +178,13 @@ def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.")]) 
     typer.echo(f"{root}: manifest of {manifest['num_samples']} samples in {len(manifest['shards'])} shards", err=True)
 
 
-@app.command()
-def verify(root: Annotated[Path, typer.Argument(help="Dataset directory.")], quiet: Quiet = False) -> None:
+@app.command(cls=Command)
+def verify(root: Annotated[Path, typer.Argument(help="Dataset directory.",
+                                                metavar="DIR")], quiet: Quiet = False) -> None:
     """Check schema, hashes, NaN/Inf and flow/valid consistency; exit 1 naming each bad shard."""
     try:
-        with _bar(None, "verify", quiet) as bar:
-            problems = verify_dataset(root, progress=bar.update)
+        with Bar("verify", quiet) as bar:
+            problems = verify_dataset(root, progress=bar.update, progress_total=bar.total)
     except ProjsynthError as e:
         raise _fail(e) from None
     for p in problems:
@@ -118,63 +195,94 @@ def verify(root: Annotated[Path, typer.Argument(help="Dataset directory.")], qui
         typer.echo(f"{root}: OK", err=True)
 
 
-@app.command()
+@app.command(cls=Command)
 def inspect(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.")],
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    quiet: Quiet = False,
 ) -> None:
     """Counts, flow-magnitude histogram and valid-pixel share per bucket and family."""
     try:
-        report = inspect_dataset(root)
+        with Bar("inspect", quiet) as bar:
+            report = inspect_dataset(root, progress=bar.update, progress_total=bar.total)
     except ProjsynthError as e:
         raise _fail(e) from None
     if as_json:
         typer.echo(json.dumps(report, indent=1))
         return
-    typer.echo(f"{report['dataset']}: {report['config']}")
-    typer.echo(f"{'family':18s} {'samples':>7s} {'valid':>6s} {'s0-10':>6s} {'s10-40':>6s} {'s40+':>6s}")
-    for name, r in [*report["families"].items(), ("TOTAL", report["total"])]:
+    for line in inspect_table(report):
+        typer.echo(line)
+
+
+def inspect_table(report: dict) -> list[str]:
+    """``inspect``'s report as text: the dataset, then per family and in total the valid share, the
+    share of valid pixels per bucket, and the magnitude histogram (share of valid pixels per bin)."""
+    c = report["config"]
+    size = "x".join(map(str, c.get("size", []))) or "?"
+    about = [f"{report['total']['samples']} samples", f"size {size}"] + [
+        f"{k} {c[k]}" for k in ("seed", "split", "pairs", "blend", "table_version") if k in c]  # fmt: skip
+    lines = [f"{report['dataset']}: " + ", ".join(about), ""]
+    rows = [*report["families"].items(), ("TOTAL", report["total"])]
+    n = max(len(name) for name, _ in rows)
+    lines.append(f"{'family':{n}s} {'samples':>7s} {'valid':>6s}  {'s0-10':>6s} {'s10-40':>6s} {'s40+':>6s}")
+    for name, r in rows:
         b = r["bucket_share"]
-        typer.echo(f"{name:18s} {r['samples']:7d} {r['valid_share']:6.1%} {b['s0-10']:6.1%} "
-                   f"{b['s10-40']:6.1%} {b['s40+']:6.1%}")  # fmt: skip
+        lines.append(f"{name:{n}s} {r['samples']:7d} {r['valid_share']:6.1%}  {b['s0-10']:6.1%} "
+                     f"{b['s10-40']:6.1%} {b['s40+']:6.1%}")  # fmt: skip
+    edges = report["histogram_edges_px"]
+    bins = [f"{a}-{b}" if b is not None else f"{a}+" for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    lines += ["", "flow magnitude histogram (px), share of valid pixels:"]
+    lines.append(f"{'family':{n}s} " + " ".join(f"{b:>6s}" for b in bins))
+    for name, r in rows:
+        total = max(sum(r["histogram"]), 1)
+        lines.append(f"{name:{n}s} " + " ".join(f"{h / total:6.1%}" for h in r["histogram"]))
+    total = max(sum(report["total"]["histogram"]), 1)
+    lines += ["", "all samples:"]
+    for b, h in zip(bins, report["total"]["histogram"], strict=True):
+        lines.append(f"{b:>7s} px {'#' * round(40 * h / total):40s} {h / total:6.1%}")
+    return lines
 
 
-@app.command()
+@app.command(cls=Command)
 def export(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.")],
-    out: Annotated[Path, typer.Option(help="Output folder.", parser=output_path)],
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="Output folder.", parser=output_path, metavar="DIR")],
     limit: Annotated[int | None, typer.Option(help="Export only the first N samples.")] = None,
+    max_flow: MaxFlow = None,
     quiet: Quiet = False,
 ) -> None:
     """Write PNGs, the flow .exr bytes unchanged, Middlebury .flo and a colour visualisation."""
     try:
-        with _bar(None, "export", quiet) as bar:
-            n = export_samples(root, out, limit, progress=bar.update, progress_total=partial(_set_total, bar))
+        with Bar("export", quiet) as bar:
+            n = export_samples(root, out, limit, progress=bar.update, progress_total=bar.total,
+                               max_flow=max_flow)  # fmt: skip
     except ProjsynthError as e:
         raise _fail(e) from None
     if not quiet:
         typer.echo(f"{out}: {n} samples exported", err=True)
 
 
-@app.command()
+@app.command(cls=Command)
 def preview(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.")],
-    out: Annotated[Path, typer.Option(help="PNG to write.")],
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="PNG to write.", metavar="FILE.png")],
     count: Annotated[int, typer.Option(help="Rows (samples spread over the dataset).")] = 8,
+    max_flow: MaxFlow = None,
 ) -> None:
-    """Contact sheet: projected | captured | flow colour | valid."""
+    """Contact sheet: projected | captured | flow colour | valid, labelled, with the wheel's legend."""
     try:
-        n = preview_sheet(root, out, count)
+        n = preview_sheet(root, out, count, max_flow)
     except ProjsynthError as e:
         raise _fail(e) from None
     typer.echo(f"{out}: {n} samples", err=True)
 
 
-@app.command("transforms")
+@app.command("transforms", cls=Command)
 def transforms_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     as_toml: Annotated[bool, typer.Option("--toml", help="Print TOML (editable, for --table).")] = False,
-    table: Annotated[Path | None, typer.Option(help="Show this TOML table instead of the built-in one.")] = None,
+    table: Annotated[Path | None, typer.Option(help="Show this TOML table instead of the built-in one.",
+                                               metavar="FILE.toml")] = None,
 ) -> None:
     """Print the transform table (160 configurations by default)."""
     try:
@@ -197,12 +305,13 @@ def transforms_cmd(
             typer.echo(f"{c.id:4d} {c.name:30s} {g}")
 
 
-@app.command()
+@app.command(cls=Command)
 def patterns(
-    kind: Annotated[str, typer.Option(help="graycode (dense, sub-pixel) or dots (the paper's 11-image protocol).")],
-    size: Annotated[str, typer.Option(help="Projector frame HxW.")],
-    out: Annotated[Path, typer.Option(help="Folder for the PNGs (NN-<name>.png) and patterns.json.")],
-    grid: Annotated[str, typer.Option(help="dots: dot grid ROWSxCOLS.")] = "20x20",
+    kind: Annotated[str, typer.Option(help="graycode (dense, sub-pixel) or dots (the paper's 11-image protocol).",
+                                      metavar="graycode|dots")],
+    size: Annotated[str, typer.Option(help="Projector frame HxW.", metavar="HxW")],
+    out: Annotated[Path, typer.Option(help="Folder for the PNGs (NN-<name>.png) and patterns.json.", metavar="DIR")],
+    grid: Annotated[str, typer.Option(help="dots: dot grid ROWSxCOLS.", metavar="ROWSxCOLS")] = "20x20",
     period: Annotated[int, typer.Option(help="graycode: fringe period in projector px (multiple of 4).")] = 16,
     shifts: Annotated[int, typer.Option(help="graycode: phase shifts per axis.")] = 8,
 ) -> None:
@@ -214,17 +323,24 @@ def patterns(
     typer.echo(f"{out}: {len(files) - 1} patterns and patterns.json", err=True)
 
 
-@app.command()
+@app.command(cls=Command)
 def capture(
-    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.")],
-    out: Annotated[Path, typer.Option(help="Folder for the photos, truth.exr and capture.json.")],
-    transform: Annotated[int, typer.Option(help="Transform id of the scene (see `projsynth transforms`).")],
-    seed: Annotated[int, typer.Option(help="Seed of the scene, photometry and noise.")] = 0,
-    camera_size: Annotated[str | None, typer.Option(help="Camera frame HxW (default: the projector's).")] = None,
-    content: Annotated[list[Path] | None, typer.Option(help="Picture to photograph too (repeatable).")] = None,
-    background: Annotated[Path | None, typer.Option(help="Surface as the camera sees it (default: built-in).")] = None,
-    blend: Annotated[str, typer.Option(help="Photometric model: physical (gamma, response) or paper.")] = "physical",
-    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
+    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.",
+                                               metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="Folder for the photos, truth.exr and capture.json.", metavar="DIR")],
+    transform: Annotated[int, typer.Option(help="Transform id of the scene (see `projsynth transforms`).",
+                                           metavar="ID")],
+    seed: Annotated[int, typer.Option(help="Seed of the scene, photometry and noise.", metavar="S")] = 0,
+    camera_size: Annotated[str | None, typer.Option(help="Camera frame HxW (default: the projector's).",
+                                                    metavar="HxW")] = None,
+    content: Annotated[list[Path] | None, typer.Option(help="Picture to photograph too (repeatable).",
+                                                       metavar="IMG")] = None,
+    background: Annotated[Path | None, typer.Option(help="Surface as the camera sees it (default: built-in).",
+                                                    metavar="IMG")] = None,
+    blend: Annotated[str, typer.Option(help="Photometric model: physical (gamma, response) or paper.",
+                                       metavar="physical|paper")] = "physical",
+    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.",
+                                               metavar="FILE.toml")] = None,
 ) -> None:
     """Virtual rig: photograph the patterns (and pictures) through one simulated scene, with exact truth."""
     try:
@@ -242,7 +358,7 @@ def capture(
 PAIR_HELP = "A picture and its photo from the same rig pose (repeatable): OUT becomes a dataset of them."
 
 
-class _PairCommand(TyperCommand):
+class _PairCommand(Command):
     """``--pair PROJECTED CAPTURED``, repeatable: two values per occurrence (Typer has no list of tuples)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -254,9 +370,12 @@ class _PairCommand(TyperCommand):
 
 @app.command(cls=_PairCommand)
 def decode(
-    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.")],
-    captures: Annotated[Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).")],
-    out: Annotated[Path, typer.Option(help="Folder for correspondence.exr (and the dataset with --pair).")],
+    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.",
+                                               metavar="DIR")],
+    captures: Annotated[Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).",
+                                           metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="Folder for correspondence.exr (and the dataset with --pair).",
+                                      metavar="DIR")],
     pair: Annotated[list[Any] | None, typer.Option(metavar="PROJECTED CAPTURED", help=PAIR_HELP)] = None,
 ) -> None:
     """Decode pattern photos into the projector -> camera correspondence (and a dataset of pairs)."""
@@ -274,6 +393,7 @@ def run_console(application: typer.Typer, prog: str) -> None:
     box; here it is ``PROG: error: MESSAGE; see `PROG COMMAND --help``` and exit 2, like every other
     error of these tools.
     """
+    use_available_cores()
     try:
         code = application(prog_name=prog, standalone_mode=False)
     except typer.Abort:

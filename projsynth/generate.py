@@ -8,9 +8,12 @@ its shards (``.gen.lock``), so two runs never write one shard.
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import multiprocessing as mp
 import os
+import queue
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -20,7 +23,8 @@ import cv2
 from threadpoolctl import threadpool_limits
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
-from .dataset import Plan, make_sample, source_images
+from .dataset import Plan, make_sample, sample_key, source_images
+from .jit import KERNELS, uncompiled_kernels
 from .shards import (
     MANIFEST,
     PLAN_FILE,
@@ -90,10 +94,12 @@ def generate(
     workers: int = 1,
     progress: Callable[[int], None] | None = None,
     progress_total: Callable[[int], None] | None = None,
+    status: Callable[[str], None] | None = None,
 ) -> GenResult:
     """Write the shards of ``plan`` under ``out`` (a subset with ``shards``) and, when all exist,
     the manifest. ``progress_total(n)`` is called once with the samples of the selected shards,
-    ``progress(n)`` with the number of samples each finished (or already done) shard adds.
+    ``progress(n)`` with the samples already done, then with 1 per sample rendered; ``status(line)``
+    with a line about a first run's kernel compilation (before and after it).
 
     Raises:
         ProjsynthError: bad options, an ``out`` holding another dataset, another ``gen`` writing some
@@ -113,6 +119,8 @@ def generate(
         for j in todo_range:
             (out / (shard_name(j) + ".tmp")).unlink(missing_ok=True)  # left by an interrupted run
             (done if shard_is_complete(out / shard_name(j), info["config_hash"]) else todo).append(j)
+        if todo:
+            compile_kernels(plan, status)  # before the bar: it would sit at 0 % meanwhile
         if progress_total:
             progress_total(sum(_shard_count(plan, shard_size, j) for j in todo_range))
         if progress:
@@ -121,11 +129,9 @@ def generate(
         if workers == 1 or len(jobs) <= 1:
             with single_threaded():
                 for job in jobs:
-                    _report(progress, _write_one(job))
+                    _write_one(job, progress)
         else:
-            with mp.get_context("spawn").Pool(min(workers, len(jobs)), initializer=_init_worker) as pool:
-                for n in pool.imap_unordered(_write_one, jobs):
-                    _report(progress, n)
+            _write_in_pool(jobs, min(workers, len(jobs)), progress)
     manifest = None
     if all(shard_is_complete(out / shard_name(j), info["config_hash"]) for j in range(num_shards)):
         manifest = assemble_manifest(out, info, num_shards, shard_size)
@@ -211,16 +217,84 @@ def single_threaded() -> Iterator[None]:
         cv2.setNumThreads(previous)
 
 
-def _init_worker() -> None:
+# a first cold compile of every kernel: about 50 s of CPU on the 2-core CI VM (numba, LLVM)
+COMPILE_SECONDS = 50
+
+
+def compile_kernels(plan: Plan, status: Callable[[str], None] | None = None) -> None:
+    """Compile the per-pixel kernels once, here, when numba's cache does not hold them yet.
+
+    Each worker process would otherwise compile them all by itself, side by side, with the progress
+    bar at 0 % for minutes. One tiny sample of each (geometry family, photometric condition) of the
+    plan calls the kernels with the argument types of the real samples (compiled code does not depend
+    on the image size).
+    """
+    missing = uncompiled_kernels()
+    if not missing:
+        return
+    first_run = len(missing) == len(KERNELS)  # else a kernel or two that earlier plans did not call: quick
+    if status and first_run:
+        status(f"compiling kernels (first run, ~{COMPILE_SECONDS} s)...")
+    t0 = time.perf_counter()
+    tiny = dataclasses.replace(plan, size=(32, 32))
+    first: dict[tuple[str, str], int] = {}
+    for k in range(len(tiny.transforms)):  # the first pair, first role: every transform once
+        cfg = tiny.table.configs[sample_key(tiny, k)[2]]
+        first.setdefault((cfg.family, cfg.condition), k)
+    with single_threaded():
+        images = source_images(tiny, 0)
+        for k in first.values():
+            make_sample(tiny, k, images)
+    if status and first_run:
+        status(f"kernels compiled in {time.perf_counter() - t0:.0f} s (cached for the next runs)")
+
+
+_TICKS = None  # a worker's queue to the parent: one item per rendered sample
+
+
+def _init_worker(ticks=None) -> None:
+    global _TICKS
+    _TICKS = ticks
     cv2.setNumThreads(1)
     threadpool_limits(1)  # for the life of the worker process
+
+
+def _write_in_pool(jobs: list[tuple], workers: int, progress: Callable[[int], None] | None) -> None:
+    """Shards in worker processes; their samples reported one by one as they are rendered."""
+    ctx = mp.get_context("spawn")
+    ticks = ctx.Queue()
+    expected = sum(_shard_count(job[0], job[2], job[3]) for job in jobs)
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(ticks,)) as pool:
+        pending = pool.map_async(_write_one_in_worker, jobs, chunksize=1)
+        received = 0
+        while received < expected:
+            try:
+                received += ticks.get(timeout=0.2)
+                _report(progress, 1)
+            except queue.Empty:
+                if pending.ready():
+                    if not pending.successful():
+                        break
+                    deadline = time.monotonic() + 2  # the last ticks may still be in the queue's pipe
+                    while received < expected and time.monotonic() < deadline:
+                        try:
+                            received += ticks.get(timeout=0.1)
+                            _report(progress, 1)
+                        except queue.Empty:
+                            pass
+                    break
+        pending.get()  # a worker's error, raised here
 
 
 def _shard_count(plan: Plan, shard_size: int, j: int) -> int:
     return min(shard_size, plan.num_samples - j * shard_size)
 
 
-def _write_one(job: tuple) -> int:
+def _write_one_in_worker(job: tuple) -> int:
+    return _write_one(job, None if _TICKS is None else _TICKS.put)
+
+
+def _write_one(job: tuple, tick: Callable[[int], None] | None = None) -> int:
     plan, out, shard_size, j, config_hash = job
     first = j * shard_size
     samples, cache = [], {}
@@ -229,6 +303,8 @@ def _write_one(job: tuple) -> int:
         if pair not in cache:
             cache = {pair: source_images(plan, pair)}  # samples of a pair are consecutive
         samples.append(make_sample(plan, k, cache[pair]))
+        if tick:
+            tick(1)
     attrs = {"format_version": FORMAT_VERSION, "generator": f"projsynth {__version__}", "config_hash": config_hash,
              "seed": plan.seed, "shard_index": j, "first_sample": first, "split": plan.split,
              "table_version": plan.table.version, "libraries": library_versions()}  # fmt: skip

@@ -9,9 +9,12 @@
 * ``error_model="numpy"``: ``x / 0.0`` gives ``inf`` or ``nan`` as in numpy instead of raising.
 """
 
+import os
 from collections.abc import Callable
 
 import numba
+
+KERNELS: list = []  # every compiled (not inlined) kernel, for :func:`uncompiled_kernels`
 
 
 def jit(fn: Callable | None = None, *, inline: bool = False) -> Callable:
@@ -22,4 +25,24 @@ def jit(fn: Callable | None = None, *, inline: bool = False) -> Callable:
     which cost more than a plane's whole ray cast.
     """
     options = {"cache": True, "error_model": "numpy", "nogil": True, "inline": "always" if inline else "never"}
-    return numba.njit(**options) if fn is None else numba.njit(**options)(fn)
+    if fn is None:
+        return lambda f: jit(f, inline=inline)
+    kernel = numba.njit(**options)(fn)
+    if not inline:
+        KERNELS.append(kernel)
+    return kernel
+
+
+def uncompiled_kernels() -> list[str]:
+    """Names of the kernels that numba's on-disk cache does not hold yet (all of them on a first run).
+
+    Only whether an index file exists is checked: a stale entry (an edited kernel) still counts as
+    compiled here, and numba recompiles it on first call as usual.
+    """
+    missing = []
+    for kernel in KERNELS:
+        cache = getattr(kernel, "_cache", None)
+        index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+        if index is None or not os.path.exists(index):
+            missing.append(kernel.py_func.__qualname__)
+    return missing

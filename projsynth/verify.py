@@ -37,8 +37,12 @@ def _samples(path: Path) -> Iterator[tuple[int, Sample]]:
                             flow, valid, params)  # fmt: skip
 
 
-def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[str]:
+def verify(root: Path, progress: Callable[[int], None] | None = None,
+           progress_total: Callable[[int], None] | None = None) -> list[str]:
     """Check schema, hashes, finiteness and flow/valid consistency of every shard.
+
+    ``progress_total(n)`` is called once the manifest is read (not before: a missing dataset is an
+    error with no progress), ``progress(n)`` with each shard's samples.
 
     Returns:
         One line per problem, each naming the file (empty when the dataset is intact).
@@ -51,6 +55,8 @@ def verify(root: Path, progress: Callable[[int], None] | None = None) -> list[st
         return problems  # the shard entries cannot be trusted to say which samples each file should hold
     h, w = manifest["size"]
     camera = tuple(manifest.get("camera_size") or (h, w))  # captured data: the camera's frame
+    if progress_total:
+        progress_total(sum(entry["count"] for entry in manifest["shards"]))
     for entry in manifest["shards"]:
         expected = iter(manifest["samples"][entry["first_sample"] : entry["first_sample"] + entry["count"]])
         path = root / entry["file"]
@@ -113,12 +119,21 @@ def _check_shard(
 _CONFIG_KEYS = ("size", "camera_size", "seed", "split", "pairs", "blend", "table_version")
 
 
-def inspect(root: Path) -> dict:
-    """Counts, per-family flow-magnitude histograms and the share of valid pixels per bucket."""
+HIST_EDGES = (0, 2, 5, 10, 20, 40, 80, 160, np.inf)
+
+
+def inspect(root: Path, progress: Callable[[int], None] | None = None,
+            progress_total: Callable[[int], None] | None = None) -> dict:
+    """Counts, per-family flow-magnitude histograms and the share of valid pixels per bucket.
+
+    ``progress_total(n)`` is called once the dataset is open, ``progress(1)`` after each sample.
+    """
     root = Path(root)
     reader = ShardReader(root)
     manifest = reader.manifest
-    edges = [0, 2, 5, 10, 20, 40, 80, 160, np.inf]
+    edges = list(HIST_EDGES)
+    if progress_total:
+        progress_total(len(reader))
     families: dict[str, dict] = {}
     total = {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0], "hist": [0] * (len(edges) - 1)}
     try:
@@ -136,6 +151,8 @@ def inspect(root: Path) -> dict:
                 r["valid"] += int(valid.sum())
                 r["buckets"] = [a + b for a, b in zip(r["buckets"], counts, strict=True)]
                 r["hist"] = [a + int(b) for a, b in zip(r["hist"], hist, strict=True)]
+            if progress:
+                progress(1)
     finally:
         reader.close()
     return {

@@ -51,6 +51,9 @@ def test_cli_writes_the_projector_image(tmp_path):
     result = CliRunner().invoke(app, ["compensate", "--content", str(tmp_path / "c.png"), "--flow",
                                       str(tmp_path / "f.exr"), "--out", str(tmp_path / "p.png")])
     assert result.exit_code == 0, result.stderr
+    lit = f"{(W - 2) / W:.1%}"  # the one-line summary on success
+    assert result.stderr == f"{tmp_path / 'p.png'}: {W}x{H} projector image (geometric), content on {lit} of its " \
+                            "pixels, --fill 0 elsewhere\n"
     out = cv2.cvtColor(cv2.imread(str(tmp_path / "p.png")), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(out[:, :-2], content[:, 2:])  # p shows content at p + (2, 0)
     assert (out[:, -2:] == 0).all()

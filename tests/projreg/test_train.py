@@ -1,6 +1,7 @@
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -121,12 +122,44 @@ def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
                 "projreg.cli"]
     env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}  # an abort shows every thread's stack
     done = subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3",
-                                      "--batch-size", "1", "--workers", "0", "--crop", "none", "--quiet"],
+                                      "--batch-size", "1", "--workers", "0", "--crop", "none"],
                           env=env, timeout=300, capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-6000:]
+    assert done.stderr.count(f"{run}: step 3, loss ") == 1  # rank 0 alone prints (and draws the bar)
     sums = __import__("json").loads((run / "ddp_params.json").read_text())
     assert len(sums) == 2 and sums[0] == sums[1]
     assert torch.load(run / "checkpoints" / "last.pt", weights_only=True)["step"] == 3
+
+
+def test_sigint_stops_after_the_step_in_flight_with_a_checkpoint_and_resume_continues(tiny_train, tmp_path):
+    def ctrl_c_at_step_3(step: int, loss: float) -> None:
+        if step == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    run, ref = tmp_path / "run", tmp_path / "ref"
+    summary = train(_cfg(tiny_train, run, steps=8, ckpt_every=100), progress=ctrl_c_at_step_3)
+    assert summary["interrupted"] == "SIGINT" and summary["step"] == 3 and summary["steps_run"] == 3
+    assert load_checkpoint(run / "checkpoints" / "last.pt")["step"] == 3  # before the first --ckpt-every
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers are restored
+    train(_cfg(tiny_train, ref, steps=6, ckpt_every=100))
+    train(_cfg(tiny_train, run, steps=6, ckpt_every=100), resume=True)
+    a = load_checkpoint(ref / "checkpoints" / "last.pt")["model"]
+    b = load_checkpoint(run / "checkpoints" / "last.pt")["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_train_summary_is_rounded_and_a_no_op_resume_says_so(tiny_train, tiny_val, tmp_path):
+    args = ["train", "--data", str(tiny_train), "--val", str(tiny_val), "--out", str(tmp_path / "r"), "--steps", "2",
+            "--batch-size", "1", "--workers", "0", "--crop", "none", "--val-every", "2", "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(app, args[:-1])
+    assert result.exit_code == 0, result.stderr
+    line = result.stderr.rsplit("\r", 1)[-1].strip().splitlines()[-1]
+    loss, epe = re.fullmatch(rf"{tmp_path / 'r'}: step 2, loss (\S+), best val EPE (\S+) px", line).groups()
+    assert len(loss.replace(".", "").lstrip("0")) <= 3 and len(epe.replace(".", "").lstrip("0")) <= 3  # 3 digits
+    again = CliRunner().invoke(app, [*args[:-1], "--resume"])
+    assert again.exit_code == 0, again.stderr
+    assert f"already at step 2 (--steps); nothing to train, best val EPE {epe} px" in again.stderr
+    assert "nan" not in again.stderr
 
 
 def test_torchrun_worker_error_is_one_line_and_exit_2(tiny_train, tmp_path):

@@ -257,3 +257,13 @@ def test_console_help_exits_0():
         done = subprocess.run([sys.executable, "-m", f"{tool}.cli", "--help"], capture_output=True, text=True,
                               timeout=120)  # fmt: skip
         assert done.returncode == 0 and "Usage:" in done.stdout, (tool, done.stderr)
+
+
+def test_an_input_error_is_one_line_with_no_bar_before_it(cli, tmp_path):
+    """``projsynth verify /nonexistent``: the error, and no empty bar (``verify: 0sample``) on its line."""
+    for args in (["verify", tmp_path / "nonexistent"], ["inspect", tmp_path / "nonexistent"],
+                 ["export", tmp_path / "nonexistent", "--out", tmp_path / "x"]):  # fmt: skip
+        result = cli.run(*args)
+        assert result.exit_code == 2
+        assert result.stderr.count("\n") == 1 and "\r" not in result.stderr, repr(result.stderr)
+        assert result.stderr.startswith(cli.ERROR_PREFIX) and "sample" not in result.stderr.split(":")[2]

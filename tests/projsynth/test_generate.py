@@ -374,3 +374,31 @@ def test_bad_array_task_specs_are_one_line_errors(spec):
 
     with pytest.raises(ProjsynthError, match="--shards"):
         parse_shard_range(spec, 8)
+
+
+def test_progress_is_per_sample_from_worker_processes(tmp_path):
+    """Two workers, two shards of 4: the bar hears of every sample as it is rendered, not per shard."""
+    plan = resolve_plan(size=(48, 64), seed=1, split="train", pairs=1, transforms="0-3", blend="paper")
+    ticks, totals = [], []
+    generate(plan, tmp_path / "ds", shard_size=4, workers=2, progress=ticks.append, progress_total=totals.append)
+    assert totals == [8] and ticks == [0] + [1] * 8
+    ticks.clear()
+    generate(plan, tmp_path / "ds", shard_size=4, workers=2, progress=ticks.append)  # all done: one call
+    assert ticks == [8]
+
+
+def test_a_first_run_says_that_it_compiles_the_kernels(monkeypatch):
+    """A cold cache (every kernel missing): one line before the compilation and one after it; a warm
+    cache, or a kernel or two that earlier plans did not need, says nothing."""
+    import projsynth.generate as gen
+    from projsynth.jit import KERNELS
+
+    plan = resolve_plan(size=(48, 64), seed=1, split="train", pairs=1, transforms="0,45", blend="paper")
+    for missing, expected in ((len(KERNELS), 2), (1, 0), (0, 0)):
+        lines = []
+        monkeypatch.setattr(gen, "uncompiled_kernels", lambda n=missing: ["kernel"] * n)
+        gen.compile_kernels(plan, lines.append)
+        assert len(lines) == expected, lines
+        if expected:
+            assert lines[0] == f"compiling kernels (first run, ~{gen.COMPILE_SECONDS} s)..."
+            assert lines[1].startswith("kernels compiled in ")

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from projsynth.dataset import Sample
-from projsynth.flowio import FLO_UNKNOWN, decode_flow_exr, encode_flow_exr, read_flo
+from projsynth.export import label_height
+from projsynth.flowio import FLO_UNKNOWN, decode_flow_exr, encode_flow_exr, flow_to_color, read_flo
 from projsynth.shards import ShardReader, file_sha256, shard_name
 from projsynth.verify import bucket_of
 
@@ -279,8 +280,18 @@ def test_inspect_table(cli, mixed_ds):
     result = cli.run("inspect", mixed_ds)
     assert result.exit_code == 0, result.stderr
     lines = result.stdout.splitlines()
-    rows = {line.split()[0]: line.split()[1] for line in lines[2:]}
+    assert lines[0].startswith(f"{mixed_ds}: 16 samples, size 48x64") and "{" not in lines[0]  # no raw dict
+    table = lines[3 : lines.index("", 3)]
+    rows = {line.split()[0]: line.split()[1] for line in table}
     assert rows == {**{f: "2" for f in cli.MIXED_FAMILIES}, "TOTAL": "16"}
+    # the histogram docs/cli.md promises: one row of shares per family and in total, then bars
+    start = lines.index("flow magnitude histogram (px), share of valid pixels:")
+    assert lines[start + 1].split() == ["family", "0-2", "2-5", "5-10", "10-20", "20-40", "40-80", "80-160", "160+"]
+    hist = {line.split()[0]: line.split()[1:] for line in lines[start + 2 : start + 2 + len(rows)]}
+    assert set(hist) == set(rows) and all(len(v) == 8 for v in hist.values())
+    report = cli.run("inspect", mixed_ds, "--json")
+    total = json.loads(report.stdout)["total"]["histogram"]
+    assert hist["TOTAL"] == [f"{h / sum(total):.1%}" for h in total]
 
 
 # --- export and preview -----------------------------------------------------------------------------
@@ -318,9 +329,11 @@ def test_export_writes_six_faithful_files_per_sample(cli, mixed_ds, tmp_path):
         np.testing.assert_array_equal(_rgb(out / f"{sid}_projected.png"), projected)
         np.testing.assert_array_equal(_rgb(out / f"{sid}_captured.png"), captured)
         np.testing.assert_array_equal(_rgb(out / f"{sid}_valid.png"), valid.astype(np.uint8) * 255)
-        colour = _rgb(out / f"{sid}_flow.png")
-        assert colour.shape == (h, w, 3) and (colour[~valid] == 0).all()  # invalid is black
+        picture = _rgb(out / f"{sid}_flow.png")
+        colour = picture[:h]  # the legend strip below
+        assert picture.shape[0] > h and colour.shape == (h, w, 3) and (colour[~valid] == 0).all()  # invalid black
         assert colour[valid].any() or not valid.any()  # (sample 5 here has no valid pixel at all)
+        np.testing.assert_array_equal(colour, flow_to_color(flow, valid))
 
 
 def test_export_limit_larger_than_the_dataset(cli, mixed_ds, tmp_path):
@@ -338,17 +351,40 @@ def test_preview_sheet(cli, mixed_ds, tmp_path, count):
     assert f"{out}: {rows} samples" in result.stderr
     sheet = _rgb(out)
     h, w = cli.manifest(mixed_ds)["size"]
-    assert sheet.shape == (rows * h, 4 * w, 3)
+    lh = label_height(w)  # the header, and each row's label strip above its pictures
+    assert sheet.shape[1] == 4 * w and sheet.shape[0] > lh + rows * (lh + h)  # + the legend
     reader = ShardReader(mixed_ds)
     try:
         for r, k in enumerate(np.linspace(0, 15, rows).astype(int)):
             s = reader.read(int(k))
-            row = sheet[r * h + 26:(r + 1) * h]  # below the sample-id label
-            np.testing.assert_array_equal(row[:, :w], s["projected"][26:])
-            np.testing.assert_array_equal(row[:, w:2 * w], s["captured"][26:])
-            np.testing.assert_array_equal(row[:, 3 * w:, 0], s["valid"][26:].astype(np.uint8) * 255)
+            row = sheet[lh + r * (lh + h) + lh : lh + (r + 1) * (lh + h)]  # the pictures are not drawn over
+            np.testing.assert_array_equal(row[:, :w], s["projected"])
+            np.testing.assert_array_equal(row[:, w : 2 * w], s["captured"])
+            np.testing.assert_array_equal(row[:, 2 * w : 3 * w], flow_to_color(s["flow"], s["valid"]))
+            np.testing.assert_array_equal(row[:, 3 * w :, 0], s["valid"].astype(np.uint8) * 255)
     finally:
         reader.close()
+
+
+def test_preview_and_export_with_a_fixed_flow_scale(cli, mixed_ds, tmp_path):
+    """--max-flow: every picture saturates at the same magnitude, so two can be compared."""
+    h, w = cli.manifest(mixed_ds)["size"]
+    result = cli.run("preview", mixed_ds, "--out", tmp_path / "sheet.png", "--count", 2, "--max-flow", 50)
+    assert result.exit_code == 0, result.stderr
+    lh = label_height(w)
+    reader = ShardReader(mixed_ds)
+    try:
+        s = reader.read(0)
+    finally:
+        reader.close()
+    row = _rgb(tmp_path / "sheet.png")[2 * lh : 2 * lh + h]
+    np.testing.assert_array_equal(row[:, 2 * w : 3 * w], flow_to_color(s["flow"], s["valid"], 50.0))
+    assert cli.run("export", mixed_ds, "--out", tmp_path / "x", "--limit", 1, "--max-flow", 50, "-q").exit_code == 0
+    exported = _rgb(tmp_path / "x" / f"{s['params']['sample_id']}_flow.png")
+    np.testing.assert_array_equal(exported[:h], flow_to_color(s["flow"], s["valid"], 50.0))
+    for command, options in (("preview", ["--out", tmp_path / "p.png"]), ("export", ["--out", tmp_path / "y"])):
+        cli.assert_one_line_error(cli.run(command, mixed_ds, *options, "--max-flow", 0), "--max-flow")
+    assert not (tmp_path / "p.png").exists() and not (tmp_path / "y").exists()
 
 
 def test_preview_refuses_a_name_that_is_not_png(cli, mixed_ds, tmp_path):
