@@ -19,7 +19,7 @@ from .dataset import parse_size, resolve_plan
 from .decode import decode_folder
 from .export import export as export_samples
 from .export import preview as preview_sheet
-from .generate import generate, merge
+from .generate import default_shard_size, generate, merge
 from .structured import make_set, parse_grid, read_patterns, write_patterns
 from .transforms import load_table, table_to_toml
 from .verify import inspect as inspect_dataset
@@ -69,16 +69,22 @@ def gen(
     split: Annotated[str, typer.Option(help=SPLIT_HELP)] = "train",
     transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).")] = None,
     table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.")] = None,
-    shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,
+    shard_size: Annotated[int | None, typer.Option(help="Samples per shard (default 64, rounded down to whole "
+                                                        "sequences).", show_default=False)] = None,
     shards: Annotated[str | None, typer.Option(help="Only these shards, e.g. 40-79 (job arrays).")] = None,
     workers: Annotated[int, typer.Option(help="Worker processes.")] = 1,
     blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.")] = "paper",
+    frames: Annotated[int, typer.Option(help="Frames per sequence: > 1 moves the rig (docs/format.md).")] = 1,
+    motion: Annotated[str | None, typer.Option(help="Sequences: hover, gust, vibration or orbit (default "
+                                                    "hover).", show_default=False)] = None,
     quiet: Quiet = False,
 ) -> None:
     """Generate shards of (projected, captured, flow) samples."""
     try:
         plan = resolve_plan(size=parse_size(size), seed=seed, split=split, pairs=pairs, transforms=transforms,
-                            blend=blend, table_path=table, natural=natural, generated=generated)  # fmt: skip
+                            blend=blend, table_path=table, natural=natural, generated=generated, frames=frames,
+                            motion=motion)  # fmt: skip
+        shard_size = default_shard_size(plan.frames) if shard_size is None else shard_size
         for line in plan.skipped:
             typer.echo(f"projsynth: warning: skipped {line}", err=True)
         with _bar(plan.num_samples, "gen", quiet) as bar:  # --shards: sized to the selected shards

@@ -20,7 +20,7 @@ import cv2
 from threadpoolctl import threadpool_limits
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
-from .dataset import Plan, make_sample, source_images
+from .dataset import Plan, make_sample, sample_key, source_images
 from .shards import (
     MANIFEST,
     PLAN_FILE,
@@ -34,6 +34,7 @@ from .shards import (
 )
 
 LOCK_FILE = ".gen.lock"
+SHARD_SIZE = 64  # the default: samples per shard (rounded down to whole sequences)
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,11 @@ class GenResult:
     skipped: list[int]
     num_shards: int
     manifest: dict | None  # None while some shards of the plan are still missing
+
+
+def default_shard_size(frames: int) -> int:
+    """``SHARD_SIZE`` samples, rounded down to whole sequences of ``frames`` (at least one)."""
+    return max(1, SHARD_SIZE // frames) * frames
 
 
 def parse_shard_range(spec: str | None, num_shards: int) -> range:
@@ -78,6 +84,9 @@ def generate(
     """
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
+    if shard_size % plan.frames:
+        raise ProjsynthError(f"--shard-size: {shard_size} is not a multiple of --frames {plan.frames} (a shard holds "
+                             f"whole sequences); use e.g. {default_shard_size(plan.frames)}")  # fmt: skip
     if workers < 1:
         raise ProjsynthError(f"--workers: must be >= 1, got {workers}")
     num_shards = -(-plan.num_samples // shard_size)
@@ -202,7 +211,7 @@ def _write_one(job: tuple) -> int:
     first = j * shard_size
     samples, cache = [], {}
     for k in range(first, first + _shard_count(plan, shard_size, j)):
-        pair = k // (2 * len(plan.transforms))
+        pair = sample_key(plan, k)[0]
         if pair not in cache:
             cache = {pair: source_images(plan, pair)}  # samples of a pair are consecutive
         samples.append(make_sample(plan, k, cache[pair]))
