@@ -156,6 +156,8 @@ def bench(
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
                                                     "samples.")] = None,
+    track: Annotated[bool, typer.Option("--track", help="Sequences (gen --frames): also NAME+track rows, each frame "
+                                                         "from the previous one's flow; jitter.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
@@ -179,7 +181,7 @@ def bench(
 
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
                                    limit=limit, compensation=compensation, photometric=photometric,
-                                   sheet=rows, progress=progress)  # fmt: skip
+                                   sheet=rows, progress=progress, track=track)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
                           sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
@@ -205,6 +207,8 @@ def predict(
                                                     "reference model.")] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
     refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md).")] = True,
+    track: Annotated[bool, typer.Option("--track", help="Folders of frames of one sequence, in name order: each "
+                                                         "frame from the previous one's flow.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
@@ -217,7 +221,7 @@ def predict(
                 bar.update(done - bar.n)
 
             written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  refine=refine, progress=progress)  # fmt: skip
+                                  refine=refine, progress=progress, track=track)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
