@@ -337,3 +337,17 @@ def test_track_needs_sequences_and_the_refinement(tiny_train, tiny_sequences, ti
         run_bench(tiny_train, baselines=["dis-fast"], track=True)
     with pytest.raises(ProjregError, match="--track .*--refine on or both"):
         run_bench(tiny_sequences, models=[tiny_ckpt], baselines=[], refine="off", device=CPU, track=True)
+
+
+def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path, monkeypatch):
+    monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
+    out = tmp_path / "t.json"
+    result = _cli("bench", "--data", tiny_sequences, "--baselines", "dis-fast", "--track", "--compensation",
+                  "--limit", "1", "--json", out, "-q")  # fmt: skip
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    assert "| jitter |" in result.stdout.splitlines()[0]
+    rows = _by_name(json.loads(out.read_text()))
+    assert list(rows) == ["dis-fast", "dis-fast+track", "uncompensated"]
+    for name in ("dis-fast", "dis-fast+track"):
+        assert rows[name]["images"] == 3 and 10 < rows[name]["comp_psnr"] < 99
+    assert rows["uncompensated"]["comp_psnr"] < rows["dis-fast"]["comp_psnr"]
