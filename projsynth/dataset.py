@@ -35,8 +35,9 @@ from .transforms import TransformTable, draw, load_table, parse_selection
 ROLES = ("natural_on_generated", "generated_on_natural")
 KINDS = ("natural", "generated")
 MIN_SIZE, MAX_SIZE = 32, 4096
-# Leading spawn-key words keep the two kinds of stream apart: (SAMPLE, split, pair, role, transform)
-# and (SOURCE, split, pair, kind) can never coincide.
+# Leading spawn-key words keep the kinds of stream apart: (SAMPLE, split, pair, role, transform),
+# (SOURCE, split, pair, kind), a sequence's (MOTION, split, pair, role, transform) and its frames'
+# (NOISE, split, pair, role, transform, frame) can never coincide.
 _SAMPLE, _SOURCE, _MOTION, _NOISE = 0, 1, 2, 3
 MAX_FRAMES = 1000
 
@@ -275,7 +276,6 @@ def sample_scene(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict]
     exposure = tuple(moved_scene(scene, *path.pose(t + dt)) for dt in offsets) if len(offsets) > 1 else ()
     return SampleScene(projected, background, moved_scene(scene, *path.pose(t)), geometry, photometry, rng,
                        exposure, noise, path.describe(t))  # fmt: skip
-
 
 
 def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
