@@ -388,6 +388,14 @@ def test_sequences_do_not_depend_on_workers_or_shard_size_and_resume_refuses_oth
     assert len({p.config_hash() for p in plans}) == 3
     assert plans[1].config_hash() == ma["config_hash"]
     assert "frames" not in plans[0].describe()  # single-frame plans hash as before sequences existed
+    # an edited manifest shows: other frames break the arithmetic, another motion the hash
+    from projsynth.manifest import manifest_problems
+
+    assert manifest_problems(ma, a / "manifest.json") == []
+    frames = manifest_problems({**ma, "frames": 6}, a / "manifest.json")
+    assert any("not whole sequences" in p for p in frames) and any("x frames) makes 24" in p for p in frames)
+    assert "does not hash" in manifest_problems({**ma, "motion": "orbit"}, a / "manifest.json")[0]
+    assert "frames is 1" in manifest_problems({**ma, "frames": 1}, a / "manifest.json")[0]
 
 
 @pytest.mark.parametrize(("args", "needle"), [
