@@ -38,8 +38,8 @@ STEPS = ("full", "tracked", "lost")  # how a frame was registered: first frame, 
 
 @dataclass(frozen=True)
 class TrackConfig:
-    """The lost-track test on the score (module docstring, step 3), chosen on a validation sequence
-    split (docs/design.md)."""
+    """The lost-track test on the score (module docstring, step 3); set by hand, not tuned on a split
+    (docs/design.md)."""
 
     drop: float = 0.08
     floor: float = 0.2
