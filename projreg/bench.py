@@ -20,6 +20,13 @@ reported as not registered; ``versus_baselines`` compares each model with the be
 pair (:func:`versus_baselines`). Groups appear in the order of their first sample. ``ms_per_pair`` is the median
 wall-clock time of one ``predict`` call over the samples, after one untimed warm-up call on the
 first sample.
+
+Tracking (``track=True``, a sequence dataset of ``projsynth gen --frames N``): the samples are
+taken sequence by sequence, and each refined model also runs as ``NAME+track`` and each dense
+baseline as ``NAME+track`` (:mod:`projreg.track`: the first frame registered in full, each next one
+from the previous frame's flow); every result then carries ``jitter`` (``track.JitterAccumulator``)
+and the tracking rows ``tracking`` (how many frames were tracked, registered in full or re-registered
+after a lost track) and ``ms_mean`` (the mean time per frame, full registrations included).
 The report schema is documented in docs/projreg-cli.md.
 
 Convention: flow forward, projected -> captured, ``(H, W, 2)`` in pixels, ``flow[y, x] = (u, v)``.
@@ -51,6 +58,7 @@ from .frames import register_any_size
 from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
 from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint
 from .refine import GeometricRefiner
+from .track import FlowTracker, JitterAccumulator, Tracker
 
 DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
 GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
@@ -67,23 +75,31 @@ class Method:
     :class:`~projreg.confidence.Prediction`.
 
     ``kind`` is ``"model"`` (gated by ``--fail-above``) or ``"baseline"`` (never gated); ``refined``
-    says whether the geometric refinement (``projreg.refine``) follows the network.
+    says whether the geometric refinement (``projreg.refine``) follows the network; ``tracker``: the
+    :class:`~projreg.track.Tracker` or :class:`~projreg.track.FlowTracker` that ``predict`` is, for a
+    tracking method (reset at the start of each sequence).
     """
 
     name: str
     kind: str
     predict: Callable[[np.ndarray, np.ndarray], np.ndarray | Prediction]
     refined: bool = False
+    tracker: Tracker | FlowTracker | None = None
 
 
-def model_methods(path: Path, device: torch.device, name: str | None = None, refine: str = "on") -> list[Method]:
+def model_methods(
+    path: Path, device: torch.device, name: str | None = None, refine: str = "on", track: bool = False
+) -> list[Method]:
     """A checkpoint as methods named ``name`` (default: the file stem), per ``refine`` (``REFINE_MODES``).
 
     ``"on"``: the network then the geometric refinement; ``"off"``: the network alone; ``"both"``:
-    the refined method named ``name`` and the network alone named ``name-raw``.
+    the refined method named ``name`` and the network alone named ``name-raw``. ``track``: also the
+    refined method tracking (:class:`~projreg.track.Tracker`), named ``name+track``.
     """
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
+    if track and refine == "off":
+        raise ProjregError("--track follows each frame with the refinement; use --refine on or both")
     model = load_model(path, device)
     name = name or Path(path).stem
     refiner = GeometricRefiner()
@@ -97,7 +113,9 @@ def model_methods(path: Path, device: torch.device, name: str | None = None, ref
     if refine == "off":
         return [Method(name, "model", raw)]
     both = [Method(name, "model", refined, True), Method(f"{name}-raw", "model", raw)]
-    return both if refine == "both" else both[:1]
+    tracker = Tracker(refined, refiner)
+    return (both if refine == "both" else both[:1]) + ([Method(f"{name}+track", "model", tracker, True, tracker)]
+                                                      if track else [])  # fmt: skip
 
 
 def baseline_method(name: str, equalize: bool = False) -> Method:
@@ -121,6 +139,15 @@ def baseline_method(name: str, equalize: bool = False) -> Method:
     return Method(name, "baseline", predict)
 
 
+def baseline_track_method(name: str, equalize: bool = False) -> Method | None:
+    """A dense baseline tracking (:class:`~projreg.track.FlowTracker`), named ``name+track``; None for
+    ``sift-ransac``, whose homography of matches has no use for a previous flow."""
+    if name == "sift-ransac":
+        return None
+    tracker = FlowTracker(make_baseline(name, equalize).predict)
+    return Method(f"{name}+track", "baseline", tracker, tracker=tracker)
+
+
 def sample_groups(params: dict) -> dict[str, str]:
     """The group of a sample under each key of ``GROUPS``, from its shard parameters."""
     try:
@@ -134,14 +161,19 @@ def sample_groups(params: dict) -> dict[str, str]:
 class _Scores:
     """One method's accumulators (overall and per group) and per-sample timings."""
 
-    def __init__(self) -> None:
+    def __init__(self, track: bool = False) -> None:
+        self.jitter = JitterAccumulator() if track else None
         self.all = EPEAccumulator()
         self.groups: dict[str, dict[str, EPEAccumulator]] = {g: {} for g in GROUPS}
         self.ms: list[float] = []
         self.comp: list[dict[str, float | None]] = []  # per sample, with --compensation
         self.pairs: list[dict] = []
 
-    def add(self, pred: Prediction, gt: np.ndarray, valid: np.ndarray, groups: dict[str, str], sid: str) -> None:
+    def add(
+        self, pred: Prediction, gt: np.ndarray, valid: np.ndarray, groups: dict[str, str], sid: str, sequence: str = ""
+    ) -> None:
+        if self.jitter is not None:
+            self.jitter.add(sequence, pred.flow, gt, valid)
         one = EPEAccumulator()
         one.add(pred.flow, gt, valid, pred.claimed, sid)
         self.all.merge(one)
@@ -154,6 +186,11 @@ class _Scores:
     def result(self, method: Method) -> dict:
         out = {"name": method.name, "kind": method.kind, "refined": method.refined, **self.all.result()}
         out["ms_per_pair"] = float(np.median(self.ms)) if self.ms else None
+        if self.jitter is not None:
+            out["jitter"] = self.jitter.result()
+        if method.tracker is not None:
+            out["ms_mean"] = float(np.mean(self.ms)) if self.ms else None
+            out["tracking"] = dict(method.tracker.counts)
         if self.comp:
             out.update(compensation_means(self.comp))
         out["unregistered"] = [p["id"] for p in self.pairs if not p["registered"]]
@@ -169,10 +206,12 @@ def resolve_methods(
     equalize: bool = False,
     device: torch.device | None = None,
     refine: str = "on",
+    track: bool = False,
 ) -> tuple[list[Method], Path | None]:
     """Checkpoints then baselines as methods; without checkpoints, the shipped reference model if any.
 
-    Each checkpoint gives one or two methods (``model_methods``, ``refine``).
+    Each checkpoint gives one to three methods (``model_methods``, ``refine``, ``track``); with
+    ``track``, the dense baselines' tracking methods follow the baselines.
 
     Returns:
         ``(methods, reference)``: ``reference`` is the shipped checkpoint when it was added, else None.
@@ -182,7 +221,7 @@ def resolve_methods(
     reference = None if models else reference_checkpoint()
     methods: list[Method] = []
     if reference is not None:
-        methods += model_methods(reference, device, "reference", refine)
+        methods += model_methods(reference, device, "reference", refine, track)
     paths = [resolve_checkpoint(p) for p in models]
     for i, path in enumerate(paths):
         if path.resolve() in {q.resolve() for q in paths[:i]}:
@@ -192,8 +231,10 @@ def resolve_methods(
             reference = path
         taken = {m.name for m in methods} | set(baselines)
         name = path.stem if path.stem not in taken else str(path.with_suffix(""))
-        methods += model_methods(path, device, name, refine)
+        methods += model_methods(path, device, name, refine, track)
     methods += [baseline_method(name, equalize) for name in baselines]
+    if track:
+        methods += [m for m in (baseline_track_method(name, equalize) for name in baselines) if m is not None]
     return methods, reference
 
 
@@ -211,6 +252,7 @@ def run_bench(
     photometric: bool = False,
     sheet: list[np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    track: bool = False,
 ) -> dict:
     """Benchmark checkpoints and baselines on one dataset directory.
 
@@ -221,7 +263,8 @@ def run_bench(
         equalize: histogram-equalise both images before the baselines (see ``projreg.baselines``).
         refine: ``"on"``, ``"off"`` or ``"both"``: models with/without/both ways the geometric
             refinement (``model_methods``).
-        limit: evaluate ``limit`` samples spread evenly over the dataset (None: all).
+        limit: evaluate ``limit`` samples spread evenly over the dataset (None: all); with ``track``,
+            ``limit`` whole sequences.
         extra_methods: more methods, reported after the others (a hook for callers and tests).
         device: where models run; default CUDA when available, else CPU.
         compensation: also judge each method's compensation by what the camera sees
@@ -231,6 +274,7 @@ def run_bench(
         sheet: with ``compensation``, a list that receives a contact-sheet row (``closedloop.sheet_row``)
             for each of the first ``SHEET_ROWS`` samples: the first method's pictures.
         progress: called ``(done, total)`` once the inputs are checked (``done`` 0), then after each sample.
+        track: tracking mode on a sequence dataset (module docstring).
 
     Returns:
         The report: ``{"dataset": {...}, "reference_model": str | None, "results": [...]}``, one
@@ -244,35 +288,48 @@ def run_bench(
     except ProjsynthError as e:
         raise ProjregError(f"--data {data}: {e}") from e
     try:
-        indices = sample_indices(len(reader), limit)
+        frames = reader.manifest.get("frames", 1)
+        if track and frames < 2:
+            raise ProjregError(f"--track: {data} holds single frames; make sequences with `projsynth gen --frames N`")
+        if track:
+            indices = [s * frames + f for s in sample_indices(len(reader) // frames, limit) for f in range(frames)]
+        else:
+            indices = sample_indices(len(reader), limit)
         if not indices:
             raise ProjregError(f"--data {data}: the dataset has no samples")
-        methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device, refine=refine)
+        methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device, refine=refine,
+                                             track=track)  # fmt: skip
         methods += list(extra_methods)
         if not methods:
             raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")
         names = [m.name for m in methods]
         if len(set(names)) < len(names):
             raise ProjregError(f"method names must be unique, got {', '.join(names)}")
-        scores = [_Scores() for _ in methods]
+        scores = [_Scores(track) for _ in methods]
         if photometric and not compensation:
             raise ProjregError("--photometric needs --compensation (it scores the camera's view of a compensation)")
         loop, uncompensated = (ClosedLoop(data, photometric), _Scores()) if compensation else (None, None)
         first = _read(reader, indices[0])
         for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
             register_any_size(m.predict, first["projected"], first["captured"])
+            if m.tracker is not None:
+                m.tracker.counts = dict.fromkeys(m.tracker.counts, 0)
         if progress:
             progress(0, len(indices))  # the bar from here: the inputs are good
         for done, k in enumerate(indices, start=1):
             s = first if done == 1 else _read(reader, k)
             groups = sample_groups(s["params"])
             sid = str(s["params"].get("sample_id", k))
+            if track and s["params"].get("frame", 0) == 0:  # a sequence starts: the trackers forget
+                for m in methods:
+                    if m.tracker is not None:
+                        m.tracker.reset()
             flows = {}
             for m, sc in zip(methods, scores, strict=True):
                 t0 = time.perf_counter()
                 pred = as_prediction(register_any_size(m.predict, s["projected"], s["captured"]))
                 sc.ms.append(1000 * (time.perf_counter() - t0))
-                sc.add(pred, s["flow"], s["valid"], groups, sid)
+                sc.add(pred, s["flow"], s["valid"], groups, sid, str(s["params"].get("sequence", "")))
                 # the compensation honours what a method claims: unclaimed pixels get no content
                 flows[m.name] = pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow,
                                                                                 np.nan)  # fmt: skip
@@ -406,13 +463,17 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 
 def compact_table(report: dict) -> str:
     """One row per method: EPE, buckets, outlier rates in percent, ms per pair (and, with compensation,
-    its PSNR and SSIM beside the EPE: where the two rankings disagree is what EPE cannot see)."""
+    its PSNR and SSIM beside the EPE: where the two rankings disagree is what EPE cannot see; in
+    tracking mode, the temporal jitter)."""
     comp = any("comp_psnr" in r for r in report["results"])
+    jitter = any("jitter" in r for r in report["results"])
     header = ["method", "kind", "EPE", *BUCKETS, *(f"px{t} %" for t in THRESHOLDS), "ms/pair"]
     header += ["comp PSNR dB", "comp SSIM"] if comp else []
+    header += ["jitter"] if jitter else []
     rows = [[r["name"], r["kind"], *(_fmt(r[k]) for k in ("epe", *BUCKETS)),
              *(_fmt(r[f"px{t}"], 100) for t in THRESHOLDS), _fmt(r["ms_per_pair"])]
             + ([_fmt(r.get("comp_psnr")), _fmt(r.get("comp_ssim"), digits=3)] if comp else [])
+            + ([_fmt(r.get("jitter"), digits=3)] if jitter else [])
             for r in report["results"]]  # fmt: skip
     return _table(header, rows)
 

@@ -220,6 +220,8 @@ def bench(
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
                                                     "samples.", metavar="FILE.png")] = None,
+    track: Annotated[bool, typer.Option("--track", help="Sequences (gen --frames): also NAME+track rows, each frame "
+                                                         "from the previous one's flow; jitter.")] = False,
     quiet: Quiet = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
@@ -240,7 +242,7 @@ def bench(
         with Bar("bench", quiet, unit="pair") as bar:
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
                                    limit=limit, compensation=compensation, photometric=photometric,
-                                   sheet=rows, progress=bar.done)  # fmt: skip
+                                   sheet=rows, progress=bar.done, track=track)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
                           sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
@@ -270,6 +272,8 @@ def predict(
     refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md; "
                                               "default on).", show_default=False)] = True,
     max_flow: MaxFlow = None,
+    track: Annotated[bool, typer.Option("--track", help="Folders of frames of one sequence, in name order: each "
+                                                         "frame from the previous one's flow.")] = False,
     quiet: Quiet = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
@@ -279,7 +283,7 @@ def predict(
         _torch_threads()
         with Bar("predict", quiet, unit="pair") as bar:
             written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  refine=refine, progress=bar.done, max_flow=max_flow)  # fmt: skip
+                                  refine=refine, progress=bar.done, max_flow=max_flow, track=track)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed

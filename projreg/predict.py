@@ -9,6 +9,10 @@ network alone (``refine=False``) has no notion of invalid pixels and claims all 
 The captured image may have another size than the projected one (a camera is not a projector): it
 is resized for the network and the flow is given in its own pixels (:mod:`projreg.frames`).
 
+Tracking (``track=True``, two folders of frames): the pairs are one sequence in name order; the first
+is registered in full, each next one from the previous one's flow (:mod:`projreg.track`); the EXR
+header's ``tracking`` says which (``full``, ``tracked`` or ``lost``: re-registered in full).
+
 Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the projected grid,
 ``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
 """
@@ -37,6 +41,7 @@ from .evaluate import predict_flow
 from .frames import register_any_size
 from .model.net import SSJMFlow
 from .refine import GeometricRefiner
+from .track import Tracker
 from .train import load_checkpoint, model_from_checkpoint, require_model
 
 NO_REFERENCE = "no shipped reference model yet; pass --model CKPT (train one with `projreg train`)"
@@ -111,6 +116,7 @@ class Predicted:
     registered: bool
     claimed: float
     reason: str
+    tracking: str = ""  # tracking mode: "full", "tracked" or "lost"
 
 
 @dataclass(frozen=True)
@@ -207,6 +213,7 @@ def predict(
     device: torch.device | None = None,
     progress: Callable[[int, int], None] | None = None,
     max_flow: float | None = None,
+    track: bool = False,
 ) -> list[Predicted]:
     """Predict the flow of one pair of files, or of every pair of two folders.
 
@@ -222,6 +229,7 @@ def predict(
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flowviz.flow_picture``, with its legend).
+        track: the pairs of two folders are the frames of one sequence, in name order (module docstring).
 
     Returns:
         One :class:`Predicted` per pair, in pair order (the caller warns about unregistered pairs).
@@ -233,6 +241,11 @@ def predict(
             scale_of(np.zeros((1, 1, 2), np.float32), None, max_flow)
         except ProjsynthError as e:
             raise ProjregError(str(e)) from None
+    if track and not Path(projected).is_dir():
+        raise ProjregError(f"--track: --projected {projected} is a file; give two folders of frames (taken in "
+                           "name order)")  # fmt: skip
+    if track and not refine:
+        raise ProjregError("--track follows each frame with the refinement; drop --no-refine")
     jobs = plan_jobs(projected, captured, out, viz)
     checkpoint = resolve_checkpoint(model)
     refuse_overwriting_inputs([(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
@@ -246,16 +259,20 @@ def predict(
         flow = predict_resized(net, img0, img1, device, max_side)
         return Prediction(flow) if refiner is None else refiner.predict(img0, img1, flow)
 
+    tracker = Tracker(register, refiner) if track else None
     results = []
     for k, job in enumerate(jobs):
         img0, img1 = _load(job.projected), _load(job.captured)
-        pred = register_any_size(register, img0, img1)
+        pred = register_any_size(register if tracker is None else tracker, img0, img1)
         valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
         attrs = {"registered": "yes" if pred.registered else "no", "claimed": f"{valid.mean():.4f}",
                  "valid_threshold": f"confidence >= {CONFIDENT}" if refiner else "all (network alone)"}  # fmt: skip
         if pred.reason:
             attrs["reason"] = pred.reason
-        results.append(Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason))
+        if tracker is not None:
+            attrs["tracking"] = tracker.last
+        results.append(Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason,
+                                 tracker.last if tracker else ""))  # fmt: skip
         try:
             files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
             if job.viz is not None:

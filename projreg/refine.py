@@ -122,13 +122,16 @@ class GeometricRefiner:
         return self.predict_info(projected, captured, flow)[0]
 
     def predict_info(
-        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray
+        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool = True
     ) -> tuple[Prediction, RefineInfo]:
         """Refine one pair: flow, per-pixel confidence, registered or not, and what was chosen.
 
         Args:
             projected, captured: uint8 RGB ``(H, W, 3)`` of one size.
-            flow: the network's flow for the pair, float ``(H, W, 2)``.
+            flow: the network's flow for the pair, float ``(H, W, 2)`` (or, tracking, the previous
+                frame's: :mod:`projreg.track`).
+            identity: also try the identity hypothesis (tracking leaves it out while ``flow`` has a
+                homography fit; its ``hypothesis`` is then "network" unless that fit failed).
 
         Returns:
             The :class:`~projreg.confidence.Prediction` (float32 ``(H, W, 2)`` forward flow, the pixels
@@ -164,6 +167,8 @@ class GeometricRefiner:
         # regions too, and the refit below keeps to the textured pixels
         fit = fit_homography(flow, step, cfg.ransac_px, None, cfg.max_area_ratio, cfg.min_hull)
         hypotheses = {"network": (None if fit is None else fit[0], flow), "identity": (np.eye(3), np.zeros_like(flow))}
+        if not identity and fit is not None:
+            del hypotheses["identity"]
         cands, scores = {}, {}
         for kind, (gray0, gray1) in images.items():
             weight = texture_weight(gray0, cfg.texture_floor if kind == "plain" else 0.0)

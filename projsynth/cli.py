@@ -21,7 +21,7 @@ from .dataset import parse_size, resolve_plan
 from .decode import decode_folder
 from .export import export as export_samples
 from .export import preview as preview_sheet
-from .generate import generate, merge
+from .generate import default_shard_size, generate, merge
 from .structured import make_set, parse_grid, read_patterns, write_patterns
 from .transforms import load_table, table_to_toml
 from .verify import inspect as inspect_dataset
@@ -143,18 +143,25 @@ def gen(
                                                    metavar="SPEC")] = None,
     table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.",
                                                metavar="FILE.toml")] = None,
-    shard_size: Annotated[int, typer.Option(help="Samples per shard.")] = 64,
+    shard_size: Annotated[int | None, typer.Option(help="Samples per shard (default 64, rounded down to whole "
+                                                        "sequences).", show_default=False, metavar="N")] = None,
     shards: Annotated[str | None, typer.Option(help="Only these shards: 40-79, or 3/16 (array task 3 of 16).",
                                                metavar="A-B|K/N")] = None,
     workers: Annotated[int, typer.Option(help="Worker processes.", metavar="K")] = 1,
     blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.",
                                        metavar="paper|physical")] = "paper",
+    frames: Annotated[int, typer.Option(help="Frames per sequence: > 1 moves the rig (docs/format.md).",
+                                        metavar="N")] = 1,
+    motion: Annotated[str | None, typer.Option(help="Sequences: hover, gust, vibration or orbit (default "
+                                                    "hover).", show_default=False, metavar="PRESET")] = None,
     quiet: Quiet = False,
 ) -> None:
     """Generate shards of (projected, captured, flow) samples."""
     try:
         plan = resolve_plan(size=parse_size(size), seed=seed, split=split, pairs=pairs, transforms=transforms,
-                            blend=blend, table_path=table, natural=natural, generated=generated)  # fmt: skip
+                            blend=blend, table_path=table, natural=natural, generated=generated, frames=frames,
+                            motion=motion)  # fmt: skip
+        shard_size = default_shard_size(plan.frames) if shard_size is None else shard_size
         for line in plan.skipped:
             typer.echo(f"projsynth: warning: skipped {line}", err=True)
         with Bar("gen", quiet) as bar:  # --shards: sized to the selected shards

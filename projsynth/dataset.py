@@ -6,6 +6,11 @@ natural image onto the generated scene, role 1 the reverse (the paper's bidirect
 Every random draw comes from ``SeedSequence(seed, spawn_key=(0, split, pair, role, transform))`` (source
 images: ``(1, split, pair, kind)``), so a
 sample never depends on the worker count, the shard size or which machine made it.
+
+Sequences (``frames`` > 1, :mod:`projsynth.motion`): what is a sample above becomes a sequence of
+``frames`` consecutive samples, ``k = sequence * frames + frame``; the sequence draws its scene and
+photometry as the sample would, its trajectory from ``(2, split, pair, role, transform)`` and each
+frame's sensor noise from ``(3, split, pair, role, transform, frame)``.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
+from .motion import FRAME_RATE_HZ, MOTIONS, draw_trajectory, moved_scene
 from .photometric import BLENDS
 from .procedural import THEMES, render_procedural
 from .render import render
@@ -29,9 +35,11 @@ from .transforms import TransformTable, draw, load_table, parse_selection
 ROLES = ("natural_on_generated", "generated_on_natural")
 KINDS = ("natural", "generated")
 MIN_SIZE, MAX_SIZE = 32, 4096
-# Leading spawn-key words keep the two kinds of stream apart: (SAMPLE, split, pair, role, transform)
-# and (SOURCE, split, pair, kind) can never coincide.
-_SAMPLE, _SOURCE = 0, 1
+# Leading spawn-key words keep the kinds of stream apart: (SAMPLE, split, pair, role, transform),
+# (SOURCE, split, pair, kind), a sequence's (MOTION, split, pair, role, transform) and its frames'
+# (NOISE, split, pair, role, transform, frame) can never coincide.
+_SAMPLE, _SOURCE, _MOTION, _NOISE = 0, 1, 2, 3
+MAX_FRAMES = 1000
 
 
 @dataclass(frozen=True)
@@ -47,10 +55,12 @@ class Plan:
     table: TransformTable
     sources: dict[str, tuple[SourceImage, ...]] | None = None  # None: built-in procedural images
     skipped: tuple[str, ...] = field(default=())  # unreadable source files, with the reason
+    frames: int = 1  # > 1: every (pair, role, transform) is a sequence of this many frames
+    motion: str | None = None  # the trajectory preset of sequences (projsynth.motion.MOTIONS)
 
     @property
     def num_samples(self) -> int:
-        return self.pairs * 2 * len(self.transforms)
+        return self.pairs * 2 * len(self.transforms) * self.frames
 
     def describe(self) -> dict:
         """JSON form recorded in ``dataset.json``/``manifest.json``; hashed into ``config_hash``."""
@@ -68,7 +78,7 @@ class Plan:
             "sources": None
             if self.sources is None
             else {k: [s.name for s in v] for k, v in self.sources.items()},
-        }
+        } | ({"frames": self.frames, "motion": self.motion} if self.frames > 1 else {})
 
     def config_hash(self) -> str:
         return plan_hash(self.describe())
@@ -79,6 +89,9 @@ PLAN_KEYS = ("format_version", "generator", "size", "seed", "split", "pairs", "t
              "table_version", "table_digest", "sources")  # fmt: skip
 
 
+# Sequence datasets add these to the plan (absent from single-frame plans, whose hash stays as it was).
+SEQUENCE_KEYS = ("frames", "motion")
+
 # A captured dataset (projsynth.captured) records its capture instead of a generation config.
 CAPTURED_PLAN_KEYS = ("format_version", "generator", "size", "camera_size", "split", "pairs", "blend", "captured")
 
@@ -87,6 +100,7 @@ def plan_hash(described: dict) -> str:
     """``config_hash``: sha256 of the ``PLAN_KEYS`` (``CAPTURED_PLAN_KEYS`` for captured data) of
     ``described`` as canonical JSON."""
     keys = CAPTURED_PLAN_KEYS if "captured" in described else PLAN_KEYS
+    keys += SEQUENCE_KEYS if "frames" in described else ()
     return hashlib.sha256(json.dumps({k: described[k] for k in keys}, sort_keys=True).encode()).hexdigest()
 
 
@@ -112,8 +126,20 @@ def resolve_plan(
     table_path: Path | None = None,
     natural: Path | None = None,
     generated: Path | None = None,
+    frames: int = 1,
+    motion: str | None = None,
 ) -> Plan:
-    """Validate the options and fix the source images of every pair (folders are read once here)."""
+    """Validate the options and fix the source images of every pair (folders are read once here).
+
+    ``frames`` > 1 makes sequences of the rig moving along ``motion`` (default ``hover``).
+    """
+    if not 1 <= frames <= MAX_FRAMES:
+        raise ProjsynthError(f"--frames: must be in 1..{MAX_FRAMES}, got {frames}")
+    if motion is not None and frames == 1:
+        raise ProjsynthError(f"--motion {motion}: a motion needs a sequence; give --frames N with N >= 2")
+    if motion is not None and motion not in MOTIONS:
+        raise ProjsynthError(f"--motion: {motion!r} is not one of {', '.join(MOTIONS)}")
+    seq = {"frames": frames, "motion": motion or "hover"} if frames > 1 else {}
     if split not in SPLITS:
         raise ProjsynthError(f"--split: {split!r} is not one of {', '.join(SPLITS)}")
     if blend not in BLENDS:
@@ -127,7 +153,7 @@ def resolve_plan(
     table = load_table(table_path)
     selected = tuple(parse_selection(transforms, len(table)))
     if natural is None:
-        return Plan(size, seed, split, pairs or 4, selected, blend, table)
+        return Plan(size, seed, split, pairs or 4, selected, blend, table, **seq)
     chosen: dict[str, tuple[SourceImage, ...]] = {}
     skipped: list[str] = []
     for kind, folder in (("natural", natural), ("generated", generated)):
@@ -152,18 +178,24 @@ def resolve_plan(
         raise ProjsynthError(f"--{short[0]}: the {split} split has only {n} usable {short[0]} image(s) "
                              f"for {pairs or 'at least 1'} pair(s){why}; {fix}")  # fmt: skip
     chosen = {k: v[:n] for k, v in chosen.items()}
-    return Plan(size, seed, split, n, selected, blend, table, chosen, tuple(skipped))
+    return Plan(size, seed, split, n, selected, blend, table, chosen, tuple(skipped), **seq)
 
 
 def sample_key(plan: Plan, k: int) -> tuple[int, int, int]:
-    """Sample index -> ``(pair, role, transform_id)``."""
-    t = len(plan.transforms)
-    return k // (2 * t), (k // t) % 2, plan.transforms[k % t]
+    """Sample index -> ``(pair, role, transform_id)`` (of its sequence, with ``frames`` > 1)."""
+    t, s = len(plan.transforms), k // plan.frames
+    return s // (2 * t), (s // t) % 2, plan.transforms[s % t]
+
+
+def sequence_id(plan: Plan, k: int) -> str:
+    """``SPLIT-pPPPPP-rR-tTTT``: the id of sample ``k`` (of its sequence, with ``frames`` > 1)."""
+    pair, role, tid = sample_key(plan, k)
+    return f"{plan.split}-p{pair:05d}-r{role}-t{tid:03d}"
 
 
 def sample_id(plan: Plan, k: int) -> str:
-    pair, role, tid = sample_key(plan, k)
-    return f"{plan.split}-p{pair:05d}-r{role}-t{tid:03d}"
+    """The sequence id, followed by ``-fFFF`` (the frame index) in a sequence dataset."""
+    return sequence_id(plan, k) + (f"-f{k % plan.frames:03d}" if plan.frames > 1 else "")
 
 
 def source_images(plan: Plan, pair: int) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -214,10 +246,16 @@ class SampleScene:
     geometry: dict
     photometry: dict
     rng: np.random.Generator
+    exposure: tuple[Scene, ...] = ()  # a frame's scenes over its exposure (motion blur); () for ``scene`` alone
+    noise: np.random.Generator | None = None  # a frame's sensor-noise stream (None: ``rng`` continues)
+    motion: dict | None = None  # a frame's ``motion`` parameters (Trajectory.describe)
 
 
 def sample_scene(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> SampleScene:
-    """The draws of sample ``k`` up to rendering (``images``: the pair's sources, if the caller has them)."""
+    """The draws of sample ``k`` up to rendering (``images``: the pair's sources, if the caller has them).
+
+    In a sequence, ``scene`` is the frame's at mid-exposure, ``exposure`` the scenes its photo averages.
+    """
     pair, role, tid = sample_key(plan, k)
     natural, generated, _ = images if images is not None else source_images(plan, pair)
     projected, background = (natural, generated) if role == 0 else (generated, natural)
@@ -226,7 +264,18 @@ def sample_scene(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict]
     rng = np.random.default_rng(ss)
     scene, geometry = make_scene(cfg.family, cfg.geometry, rng, plan.size)
     photometry = draw(rng, cfg.photometry)
-    return SampleScene(projected, background, scene, geometry, photometry, rng)
+    if plan.frames == 1:
+        return SampleScene(projected, background, scene, geometry, photometry, rng)
+    key = (SPLITS.index(plan.split), pair, role, tid)
+    path = draw_trajectory(plan.motion, plan.frames, np.random.default_rng(np.random.SeedSequence(
+        plan.seed, spawn_key=(_MOTION, *key))))  # fmt: skip
+    frame = k % plan.frames
+    t = frame / FRAME_RATE_HZ
+    noise = np.random.default_rng(np.random.SeedSequence(plan.seed, spawn_key=(_NOISE, *key, frame)))
+    offsets = path.exposure()
+    exposure = tuple(moved_scene(scene, *path.pose(t + dt)) for dt in offsets) if len(offsets) > 1 else ()
+    return SampleScene(projected, background, moved_scene(scene, *path.pose(t)), geometry, photometry, rng,
+                       exposure, noise, path.describe(t))  # fmt: skip
 
 
 def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
@@ -237,7 +286,7 @@ def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] 
     cfg = plan.table.configs[tid]
     s = sample_scene(plan, k, images)
     projected, scene, geometry, photometry = s.projected, s.scene, s.geometry, s.photometry
-    out = render(projected, s.background, scene, photometry, plan.blend, s.rng)
+    out = render(projected, s.background, scene, photometry, plan.blend, s.rng, exposure=s.exposure, noise=s.noise)
     params = {
         "sample_id": sample_id(plan, k),
         "pair": pair,
@@ -253,4 +302,7 @@ def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] 
         "scene": scene.to_dict(),
         "stats": out.stats,
     }
+    if plan.frames > 1:
+        params |= {"sequence": sequence_id(plan, k), "frame": k % plan.frames, "frames": plan.frames,
+                   "motion": s.motion}  # fmt: skip
     return Sample(k, params["sample_id"], projected, out.captured, out.flow, out.valid, params)

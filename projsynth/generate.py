@@ -38,6 +38,7 @@ from .shards import (
 )
 
 LOCK_FILE = ".gen.lock"
+SHARD_SIZE = 64  # the default: samples per shard (rounded down to whole sequences)
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,11 @@ class GenResult:
     skipped: list[int]
     num_shards: int
     manifest: dict | None  # None while some shards of the plan are still missing
+
+
+def default_shard_size(frames: int) -> int:
+    """``SHARD_SIZE`` samples, rounded down to whole sequences of ``frames`` (at least one)."""
+    return max(1, SHARD_SIZE // frames) * frames
 
 
 def parse_shard_range(spec: str | None, num_shards: int) -> range:
@@ -107,6 +113,9 @@ def generate(
     """
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
+    if shard_size % plan.frames:
+        raise ProjsynthError(f"--shard-size: {shard_size} is not a multiple of --frames {plan.frames} (a shard holds "
+                             f"whole sequences); use e.g. {default_shard_size(plan.frames)}")  # fmt: skip
     if workers < 1:
         raise ProjsynthError(f"--workers: must be >= 1, got {workers}")
     num_shards = -(-plan.num_samples // shard_size)
@@ -299,7 +308,7 @@ def _write_one(job: tuple, tick: Callable[[int], None] | None = None) -> int:
     first = j * shard_size
     samples, cache = [], {}
     for k in range(first, first + _shard_count(plan, shard_size, j)):
-        pair = k // (2 * len(plan.transforms))
+        pair = sample_key(plan, k)[0]
         if pair not in cache:
             cache = {pair: source_images(plan, pair)}  # samples of a pair are consecutive
         samples.append(make_sample(plan, k, cache[pair]))

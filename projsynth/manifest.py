@@ -13,7 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from . import READABLE_FORMATS, ProjsynthError
-from .dataset import CAPTURED_PLAN_KEYS, MAX_SIZE, MIN_SIZE, PLAN_KEYS, plan_hash
+from .dataset import CAPTURED_PLAN_KEYS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, PLAN_KEYS, SEQUENCE_KEYS, plan_hash
+from .motion import MOTIONS
 from .sources import SPLITS
 
 
@@ -64,6 +65,12 @@ _SCHEMA: dict[str, tuple[Callable[[object], bool], str]] = {
 }  # fmt: skip
 
 
+# Sequence datasets only (``frames`` > 1); a manifest without them is a single-frame one.
+_SEQUENCE_SCHEMA: dict[str, tuple[Callable[[object], bool], str]] = {
+    "frames": (lambda v: _int(2)(v) and v <= MAX_FRAMES, f"an integer in 2..{MAX_FRAMES}"),
+    "motion": (lambda v: v in MOTIONS, f"one of {', '.join(MOTIONS)}"),
+}
+
 # A captured dataset (projsynth.captured): no generation config, a capture record and the camera's size.
 _CAPTURED_SCHEMA = {k: v for k, v in _SCHEMA.items() if k not in ("seed", "transforms", "table_version",
                                                                  "table_digest", "sources")}  # fmt: skip
@@ -88,6 +95,8 @@ def manifest_problems(m: dict, path: Path) -> list[str]:
         raise ProjsynthError(f"{path}: format version {version!r} is not one this projsynth reads "
                              f"({', '.join(map(str, READABLE_FORMATS))}); use the projsynth that wrote it")  # fmt: skip
     schema = _CAPTURED_SCHEMA if "captured" in m else _SCHEMA
+    if any(k in m for k in SEQUENCE_KEYS):
+        schema = schema | _SEQUENCE_SCHEMA
     missing = [k for k in schema if k not in m]
     if missing:
         raise ProjsynthError(f"{path}: manifest lacks {', '.join(missing)}; re-run `projsynth merge {path.parent}`")
@@ -106,11 +115,14 @@ def _layout_problems(m: dict) -> list[str]:
         if e["index"] != j or e["first_sample"] != first:
             out.append(f"shard entry {j} is not shard {j} starting at sample {first}")
             break
+        if m.get("frames", 1) > 1 and (e["count"] % m["frames"] or size % m["frames"]):
+            out.append(f"shard {j} holds {e['count']} samples of shards of {size}: not whole sequences of "
+                       f"{m['frames']} frames")  # fmt: skip
         if e["count"] > size or (e["count"] < size and j < len(shards) - 1):
             out.append(f"shard {j} holds {e['count']} samples; every shard but the last holds {size}")
         first += e["count"]
     planned = ("captured pairs are", m["pairs"]) if "captured" in m else (
-        "plan (pairs x 2 x transforms) makes", m["pairs"] * 2 * len(m["transforms"]))
+        "plan (pairs x 2 x transforms x frames) makes", m["pairs"] * 2 * len(m["transforms"]) * m.get("frames", 1))
     for what, n in (("shard counts sum to", first), ("samples list has", len(m["samples"])), planned):
         if n != m["num_samples"]:
             out.append(f"num_samples is {m['num_samples']} but the {what} {n}")
@@ -120,5 +132,5 @@ def _layout_problems(m: dict) -> list[str]:
 def _hash_problems(m: dict) -> list[str]:
     if plan_hash(m) == m["config_hash"]:
         return []
-    keys = CAPTURED_PLAN_KEYS if "captured" in m else PLAN_KEYS
+    keys = (CAPTURED_PLAN_KEYS if "captured" in m else PLAN_KEYS) + (SEQUENCE_KEYS if "frames" in m else ())
     return [f"the plan ({', '.join(keys)}) does not hash to config_hash: edited after it was written"]

@@ -8,6 +8,7 @@ image at ``p + flow(p)`` gives back the projected image at ``p`` (up to interpol
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -45,6 +46,9 @@ def render(
     photometry: dict[str, float],
     blend: str,
     rng: np.random.Generator,
+    *,
+    exposure: Sequence[Scene] = (),
+    noise: np.random.Generator | None = None,
 ) -> Rendered:
     """Project ``projected`` through ``scene`` onto ``background`` and record the ground truth.
 
@@ -55,11 +59,16 @@ def render(
         photometry: drawn parameters for :func:`~projsynth.photometric.composite`.
         blend: ``"paper"`` or ``"physical"``.
         rng: the sample's generator, used for the transparency field and the noise.
+        exposure: motion blur: the scenes of the rig's poses over the exposure; the photo is the mean
+            of their photos (each with the same noise, so the mean has one photo's noise), rounded.
+            The ground truth stays ``scene``'s (the mid-exposure pose). Empty: ``scene``'s photo.
+        noise: the generator of the sensor noise (None: ``rng``, continuing after the transparency).
     """
     flow, valid, reason = ground_truth(scene)
     alpha = alpha_field(projected.shape[:2], photometry["alpha"], photometry["alpha_var"], rng)
     view = camera_view(scene)
-    captured = photograph(projected, alpha, view, background, photometry, blend, rng)
+    views = [camera_view(sub) for sub in exposure] or [view]
+    captured = expose(projected, alpha, views, background, photometry, blend, rng if noise is None else noise)
     return Rendered(captured, flow, valid, _stats(scene, reason, flow, valid, view[1]))
 
 
@@ -107,6 +116,28 @@ def photograph(
         projected = np.repeat(projected[..., None], 3, axis=2)
     rgba = _with_alpha(np.ascontiguousarray(projected), alpha)
     return composite(blend, rgba, view[0], view[1], background, photometry, rng)
+
+
+def expose(
+    projected: np.ndarray,
+    alpha: np.ndarray,
+    views: Sequence[tuple[np.ndarray, np.ndarray]],
+    background: np.ndarray,
+    photometry: dict[str, float],
+    blend: str,
+    noise: np.random.Generator,
+) -> np.ndarray:
+    """:func:`photograph` over an exposure: the mean of one photo per camera view (the rig's poses over
+    the exposure), rounded to uint8; every photo draws the same noise from ``noise``, so the mean has
+    one photo's noise. One view: its photo, exactly."""
+    if len(views) == 1:
+        return photograph(projected, alpha, views[0], background, photometry, blend, noise)
+    state = noise.bit_generator.state
+    photos = []
+    for view in views:
+        noise.bit_generator.state = state
+        photos.append(photograph(projected, alpha, view, background, photometry, blend, noise))
+    return np.rint(np.mean(photos, axis=0)).astype(np.uint8)
 
 
 @jit

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import ProjsynthError
 from .dataset import Plan, resolve_plan, sample_key, sample_scene, source_images
-from .render import alpha_field, camera_view, photograph
+from .render import alpha_field, camera_view, expose
 from .shards import PLAN_FILE, read_json
 from .transforms import builtin_table
 
@@ -59,6 +59,8 @@ def plan_of(root: Path) -> Plan:
             pairs=info["pairs"],
             transforms=",".join(str(t) for t in info["transforms"]),
             blend=info["blend"],
+            frames=info.get("frames", 1),
+            motion=info.get("motion"),
         )
     except (KeyError, TypeError, ValueError) as e:
         raise ProjsynthError(f"{path}: not a projsynth plan ({e}); regenerate the dataset") from e
@@ -84,18 +86,21 @@ class Rerenderer:
 
     def views(self, k: int, images: list[np.ndarray]) -> list[View]:
         """Sample ``k``'s camera photo of each projector image (``(H, W, 3)`` uint8, the projector's
-        frame), every one with the sample's own transparency field and noise stream."""
+        frame), every one with the sample's own transparency field and noise stream (and, for a frame
+        of a sequence, its exposure: the motion blur)."""
         s = sample_scene(self.plan, k, self._sources(k))
         alpha = alpha_field(s.projected.shape[:2], s.photometry["alpha"], s.photometry["alpha_var"], s.rng)
-        after_alpha = s.rng.bit_generator.state
+        noise = s.rng if s.noise is None else s.noise
+        after_alpha = noise.bit_generator.state
         view = camera_view(s.scene)
+        views = [camera_view(sub) for sub in s.exposure] or [view]
         hc, wc = s.scene.camera.height, s.scene.camera.width
         lit, source = view[1].reshape(hc, wc), view[0].T.reshape(hc, wc, 2)
         out = []
         for image in images:
             if image.shape != s.projected.shape:
                 raise ProjsynthError(f"a projector image of shape {image.shape} for a {s.projected.shape} projector")
-            s.rng.bit_generator.state = after_alpha  # the same noise for every image
-            photo = photograph(image, alpha, view, s.background, s.photometry, self.plan.blend, s.rng)
+            noise.bit_generator.state = after_alpha  # the same noise for every image
+            photo = expose(image, alpha, views, s.background, s.photometry, self.plan.blend, noise)
             out.append(View(photo, lit, source))
         return out

@@ -31,6 +31,16 @@ def tiny_val(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def tiny_sequences(tmp_path_factory):
+    """Four sequences of 3 frames (two transforms x two roles) of a hovering projector, 64 x 96."""
+    plan = resolve_plan(size=(64, 96), seed=2, split="test", pairs=1, transforms="0,126", blend="paper", frames=3,
+                        motion="hover")  # fmt: skip
+    root = tmp_path_factory.mktemp("tiny") / "sequences"
+    generate(plan, root, shard_size=6)
+    return root
+
+
+@pytest.fixture(scope="session")
 def tiny_ckpt(tiny_train, tmp_path_factory):
     """A 2-step checkpoint: weights are untrained, the plumbing is real."""
     out = tmp_path_factory.mktemp("run") / "run"

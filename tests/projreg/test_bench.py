@@ -301,3 +301,53 @@ def test_errors_name_the_path(tiny_train, tmp_path, one_line_error):
     one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "dis-fast", "--limit", "1", "--model",
                         "reference", "--json", report, "--markdown", blocker / "r.md", "-q"), blocker / "r.md")
     assert not report.exists()  # both outputs or neither
+
+
+def test_track_rows_carry_every_metric_the_jitter_and_how_frames_were_registered(tiny_sequences, tiny_ckpt):
+    report = run_bench(tiny_sequences, models=[tiny_ckpt], baselines=["dis-fast", "sift-ransac"], device=CPU,
+                       track=True)  # fmt: skip
+    rows = _by_name(report)
+    assert list(rows) == ["last", "last+track", "dis-fast", "sift-ransac", "dis-fast+track"]  # no sift tracking
+    for name in ("last+track", "dis-fast+track"):
+        assert set(rows["last"]) - {"jitter"} <= set(rows[name]) and rows[name]["ms_mean"] > 0
+        assert sum(rows[name]["tracking"].values()) == 12 and rows[name]["tracking"]["full"] == 4
+        assert rows[name]["kind"] == rows[name.split("+")[0]]["kind"]
+    assert all(r["jitter"] is not None and r["jitter"] >= 0 for r in rows.values())
+    # the jitter of a row is JitterAccumulator's over its own flows, sequence by sequence
+    from projreg.baselines import make_baseline
+    from projreg.track import JitterAccumulator
+
+    dis, acc = make_baseline("dis-fast"), JitterAccumulator()
+    samples = _samples(tiny_sequences)
+    for s in samples:
+        acc.add(s["params"]["sequence"], dis.predict(s["projected"], s["captured"]), s["flow"], s["valid"])
+    assert rows["dis-fast"]["jitter"] == pytest.approx(acc.result(), rel=1e-9)
+    # each sequence's first frame is the full method's own answer
+    for i, s in enumerate(samples):
+        if s["params"]["frame"] == 0:
+            assert rows["dis-fast+track"]["pairs"][i]["epe"] == pytest.approx(rows["dis-fast"]["pairs"][i]["epe"])
+            assert rows["last+track"]["pairs"][i]["epe"] == pytest.approx(rows["last"]["pairs"][i]["epe"], rel=1e-5)
+    # --limit counts whole sequences
+    one = run_bench(tiny_sequences, baselines=["dis-fast"], models=[tiny_ckpt], device=CPU, track=True, limit=1)
+    assert [p["id"] for p in one["results"][0]["pairs"]] == [s["params"]["sample_id"] for s in samples[:3]]
+
+
+def test_track_needs_sequences_and_the_refinement(tiny_train, tiny_sequences, tiny_ckpt):
+    with pytest.raises(ProjregError, match="--track: .* single frames"):
+        run_bench(tiny_train, baselines=["dis-fast"], track=True)
+    with pytest.raises(ProjregError, match="--track .*--refine on or both"):
+        run_bench(tiny_sequences, models=[tiny_ckpt], baselines=[], refine="off", device=CPU, track=True)
+
+
+def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path, monkeypatch):
+    monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
+    out = tmp_path / "t.json"
+    result = _cli("bench", "--data", tiny_sequences, "--baselines", "dis-fast", "--track", "--compensation",
+                  "--limit", "1", "--json", out, "-q")  # fmt: skip
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    assert "| jitter |" in result.stdout.splitlines()[0]
+    rows = _by_name(json.loads(out.read_text()))
+    assert list(rows) == ["dis-fast", "dis-fast+track", "uncompensated"]
+    for name in ("dis-fast", "dis-fast+track"):
+        assert rows[name]["images"] == 3 and 10 < rows[name]["comp_psnr"] < 99
+    assert rows["uncompensated"]["comp_psnr"] < rows["dis-fast"]["comp_psnr"]

@@ -133,3 +133,40 @@ def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeyp
     monkeypatch.setattr(projreg.predict, "reference_checkpoint", lambda: None)
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
                     "--model")  # fmt: skip
+
+
+def test_track_mode_takes_the_frames_in_name_order_from_the_previous_flow(tiny_sequences, tiny_ckpt, tmp_path):
+    reader = ShardReader(tiny_sequences)
+    try:
+        frames = [reader.read(k) for k in range(3)]  # one sequence
+    finally:
+        reader.close()
+    for s in frames:
+        name = f"{s['params']['frame']:02d}.png"
+        _write(tmp_path / "P" / name, s["projected"])
+        _write(tmp_path / "C" / name, s["captured"])
+    out = tmp_path / "out"
+    result = _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--model", tiny_ckpt,
+                  "--track")  # fmt: skip
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    steps = [read_flow_exr(out / f"{i:02d}_flow.exr")[2]["tracking"] for i in range(3)]
+    assert steps[0] == "full" and set(steps[1:]) <= {"tracked", "lost"}
+    # the same as the tracker run directly
+    from projreg.track import Tracker
+
+    model, refiner = load_model(tiny_ckpt, CPU), GeometricRefiner()
+    tracker = Tracker(lambda a, b: refiner.predict(a, b, predict_flow(model, a, b, CPU)), refiner)
+    for i, s in enumerate(frames):
+        expected = tracker(s["projected"], s["captured"])
+        assert tracker.last == steps[i]
+        np.testing.assert_allclose(read_flow_exr(out / f"{i:02d}_flow.exr")[0], expected.flow, atol=1e-4)
+
+
+def test_track_mode_errors_name_the_option(pairs, tiny_ckpt, tmp_path, one_line_error):
+    a, b = _write(tmp_path / "a.png", pairs[0][0]), _write(tmp_path / "b.png", pairs[0][1])
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", tmp_path / "f.exr", "--model", tiny_ckpt,
+                        "--track"), "--track", "folders")  # fmt: skip
+    (tmp_path / "P").mkdir()
+    (tmp_path / "C").mkdir()
+    one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o",
+                        "--model", tiny_ckpt, "--track", "--no-refine"), "--track", "--no-refine")  # fmt: skip

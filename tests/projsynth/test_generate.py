@@ -402,3 +402,53 @@ def test_a_first_run_says_that_it_compiles_the_kernels(monkeypatch):
         if expected:
             assert lines[0] == f"compiling kernels (first run, ~{gen.COMPILE_SECONDS} s)..."
             assert lines[1].startswith("kernels compiled in ")
+
+
+# --- sequences ----------------------------------------------------------------------------------------
+
+SEQUENCE = ["--pairs", "1", "--size", "48x64", "--seed", "4", "--transforms", "0,125", "--frames", "3", "--motion",
+            "gust"]  # fmt: skip
+
+
+def test_sequences_do_not_depend_on_workers_or_shard_size_and_resume_refuses_other_frames(cli, tmp_path):
+    a, b = tmp_path / "w2-s3", tmp_path / "w1-s6"
+    result = cli.run("gen", "--out", a, *SEQUENCE, "--shard-size", "3", "--workers", "2", "-q")
+    assert result.exit_code == 0, result.stderr
+    result = cli.run("gen", "--out", b, *SEQUENCE, "--workers", "1", "-q")  # default: 63, whole sequences
+    assert result.exit_code == 0, result.stderr
+    ma, mb = cli.manifest(a), cli.manifest(b)
+    assert (ma["frames"], ma["motion"], ma["num_samples"], len(ma["shards"])) == (3, "gust", 12, 4)
+    assert (mb["shard_size"], len(mb["shards"])) == (63, 1)
+    assert ma["samples"] == mb["samples"] and ma["config_hash"] == mb["config_hash"]
+    assert [s["id"] for s in ma["samples"][:4]] == ["train-p00000-r0-t000-f000", "train-p00000-r0-t000-f001",
+                                                     "train-p00000-r0-t000-f002", "train-p00000-r0-t125-f000"]
+    for root in (a, b):
+        assert cli.run("verify", root).exit_code == 0
+    # the frames and the motion are part of the plan: resuming with others is refused
+    for other in ([], ["--frames", "3", "--motion", "hover"]):
+        result = cli.run("gen", "--out", a, *SEQUENCE[:-4], *other, "--shard-size", "3", "-q")
+        cli.assert_one_line_error(result, "other options")
+    plans = [resolve_plan(size=(48, 64), seed=4, split="train", pairs=1, transforms="0,125", blend="paper", **kw)
+             for kw in ({}, {"frames": 3, "motion": "gust"}, {"frames": 4, "motion": "gust"})]  # fmt: skip
+    assert len({p.config_hash() for p in plans}) == 3
+    assert plans[1].config_hash() == ma["config_hash"]
+    assert "frames" not in plans[0].describe()  # single-frame plans hash as before sequences existed
+    # an edited manifest shows: other frames break the arithmetic, another motion the hash
+    from projsynth.manifest import manifest_problems
+
+    assert manifest_problems(ma, a / "manifest.json") == []
+    frames = manifest_problems({**ma, "frames": 6}, a / "manifest.json")
+    assert any("not whole sequences" in p for p in frames) and any("x frames) makes 24" in p for p in frames)
+    assert "does not hash" in manifest_problems({**ma, "motion": "orbit"}, a / "manifest.json")[0]
+    assert "frames is 1" in manifest_problems({**ma, "frames": 1}, a / "manifest.json")[0]
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--frames", "3", "--shard-size", "4"], "--shard-size"),
+    (["--motion", "gust"], "--motion"),
+    (["--frames", "3", "--motion", "wobble"], "--motion"),
+    (["--frames", "0"], "--frames"),
+])  # fmt: skip
+def test_bad_sequence_options_are_one_line_errors(cli, tmp_path, args, needle):
+    result = cli.run("gen", "--out", tmp_path / "x", "--pairs", "1", "--size", "48x64", "--transforms", "0", *args)
+    cli.assert_one_line_error(result, needle)
