@@ -120,17 +120,38 @@ def train(
 
 @app.command()
 def export(
-    checkpoint: Annotated[Path, typer.Option(help="Checkpoint written by `projreg train` (last.pt or best.pt).")],
-    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.", parser=output_path)],
+    checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint written by `projreg train` (last.pt or "
+                                                         "best.pt); with --onnx also `reference`, the default "
+                                                         "there.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Deployable checkpoint to write.", parser=output_path)] = None,
+    onnx: Annotated[Path | None, typer.Option("--onnx", help="Write the network (no refinement) as an ONNX graph "
+                                              "instead (needs the [onnx] extra).", parser=output_path)] = None,
+    opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (>= 16).")] = 18,
 ) -> None:
-    """Strip a training checkpoint to weights + config + provenance (what bench/predict need)."""
+    """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
+    from .onnx_export import export_checkpoint_onnx
     from .train import export_checkpoint
 
     try:
+        if (out is None) == (onnx is None):
+            raise ProjregError("give --out CKPT (a deployable checkpoint) or --onnx FILE.onnx (an ONNX graph of the "
+                               "network), one of them")  # fmt: skip
+        if onnx is not None:
+            written = export_checkpoint_onnx(checkpoint, onnx, opset=opset)
+            typer.echo(f"{written}: opset {opset}, {written.stat().st_size / 2**20:.2f} MiB", err=True)
+            return
+        if checkpoint is None:
+            raise ProjregError("--out needs --checkpoint: the `projreg train` checkpoint to strip")
         slim = export_checkpoint(checkpoint, out)
     except ProjregError as e:
         raise _fail(e) from None
     typer.echo(f"{out}: step {slim.get('step')}, {out.stat().st_size / 2**20:.2f} MiB", err=True)
+
+
+DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
+PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
+BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
+FAST_HELP = "Fast path: the network at <= 256 px, the refinement from the network's hypothesis only."
 
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
@@ -152,6 +173,10 @@ def bench(
     fail_above: Annotated[list[str] | None, typer.Option(help="[NAME:]METRIC=VALUE gate on models (repeatable; "
                                                               "NAME: that model only).")] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
+    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False)] = None,
+    precision: Annotated[str, typer.Option(help=PRECISION_HELP)] = "fp32",
+    backend: Annotated[str, typer.Option(help=BACKEND_HELP)] = "torch",
+    fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
@@ -178,8 +203,9 @@ def bench(
                 bar.update(done - bar.n)
 
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
-                                   limit=limit, compensation=compensation, photometric=photometric,
-                                   sheet=rows, progress=progress)  # fmt: skip
+                                   limit=limit, device=device, precision=precision, backend=backend, fast=fast,
+                                   compensation=compensation, photometric=photometric, sheet=rows,
+                                   progress=progress)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
                           sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
@@ -205,6 +231,12 @@ def predict(
                                                     "reference model.")] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
     refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md).")] = True,
+    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False)] = None,
+    precision: Annotated[str, typer.Option(help=PRECISION_HELP)] = "fp32",
+    backend: Annotated[str, typer.Option(help=BACKEND_HELP)] = "torch",
+    batch_size: Annotated[int, typer.Option(help="Pairs per network call in folder mode (pairs of one size "
+                                                 "are batched).")] = 1,
+    fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
@@ -217,7 +249,8 @@ def predict(
                 bar.update(done - bar.n)
 
             written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  refine=refine, progress=progress)  # fmt: skip
+                                  refine=refine, device=device, precision=precision, backend=backend,
+                                  batch_size=batch_size, fast=fast, progress=progress)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
