@@ -125,7 +125,7 @@ def export(
                                                          "there.")] = None,
     out: Annotated[Path | None, typer.Option(help="Deployable checkpoint to write.", parser=output_path)] = None,
     onnx: Annotated[Path | None, typer.Option("--onnx", help="Write the network (no refinement) as an ONNX graph "
-                                              "instead (needs the [onnx] extra).", parser=output_path)] = None,
+                                              "instead (needs the optional onnx extra).", parser=output_path)] = None,
     opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (>= 16).")] = 18,
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
