@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -53,11 +54,12 @@ from . import ProjregError
 from .baselines import make_baseline
 from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_header, sheet_row
 from .confidence import Prediction, as_prediction
-from .evaluate import predict_flow, sample_indices
+from .evaluate import sample_indices
 from .frames import register_any_size
+from .infer import FAST_MAX_SIDE, flows_resized, open_network
 from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
-from .predict import default_device, load_model, reference_checkpoint, resolve_checkpoint
-from .refine import GeometricRefiner
+from .predict import reference_checkpoint, resolve_checkpoint
+from .refine import FAST_REFINE, GeometricRefiner
 from .track import FlowTracker, JitterAccumulator, Tracker
 
 DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
@@ -88,24 +90,36 @@ class Method:
 
 
 def model_methods(
-    path: Path, device: torch.device, name: str | None = None, refine: str = "on", track: bool = False
+    path: Path,
+    device: torch.device | str | None,
+    name: str | None = None,
+    refine: str = "on",
+    *,
+    precision: str = "fp32",
+    backend: str = "torch",
+    fast: bool = False,
+    track: bool = False,
 ) -> list[Method]:
     """A checkpoint as methods named ``name`` (default: the file stem), per ``refine`` (``REFINE_MODES``).
 
     ``"on"``: the network then the geometric refinement; ``"off"``: the network alone; ``"both"``:
-    the refined method named ``name`` and the network alone named ``name-raw``. ``track``: also the
-    refined method tracking (:class:`~projreg.track.Tracker`), named ``name+track``.
+    the refined method named ``name`` and the network alone named ``name-raw``. ``device``,
+    ``precision`` and ``backend`` say where and how the network runs (:func:`projreg.infer.open_network`;
+    ``backend="onnxruntime"`` takes a ``.onnx`` file); ``fast`` is ``predict --fast``'s path (the
+    network at ``FAST_MAX_SIDE``, the refinement ``FAST_REFINE``; names end in ``-fast``). ``track``:
+    also the refined method tracking (:class:`~projreg.track.Tracker`), named ``name+track``.
     """
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
     if track and refine == "off":
         raise ProjregError("--track follows each frame with the refinement; use --refine on or both")
-    model = load_model(path, device)
-    name = name or Path(path).stem
-    refiner = GeometricRefiner()
+    net = open_network(path, backend=backend, device=device, precision=precision)
+    name = (name or Path(path).stem) + ("-fast" if fast else "")
+    refiner = GeometricRefiner(FAST_REFINE if fast else None)
+    max_side = FAST_MAX_SIDE if fast else sys.maxsize
 
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
-        return predict_flow(model, img0, img1, device)
+        return flows_resized(net, [(img0, img1)], max_side)[0]
 
     def refined(img0: np.ndarray, img1: np.ndarray) -> Prediction:
         return refiner.predict(img0, img1, raw(img0, img1))
@@ -204,24 +218,28 @@ def resolve_methods(
     baselines: Sequence[str],
     *,
     equalize: bool = False,
-    device: torch.device | None = None,
+    device: torch.device | str | None = None,
     refine: str = "on",
+    precision: str = "fp32",
+    backend: str = "torch",
+    fast: bool = False,
     track: bool = False,
 ) -> tuple[list[Method], Path | None]:
     """Checkpoints then baselines as methods; without checkpoints, the shipped reference model if any.
 
-    Each checkpoint gives one to three methods (``model_methods``, ``refine``, ``track``); with
-    ``track``, the dense baselines' tracking methods follow the baselines.
+    Each checkpoint gives one to three methods (``model_methods``: ``refine``, ``device``,
+    ``precision``, ``backend``, ``fast``, ``track``); with ``track``, the dense baselines' tracking
+    methods follow the baselines.
 
     Returns:
         ``(methods, reference)``: ``reference`` is the shipped checkpoint when it was added, else None.
         A checkpoint whose stem is already taken is named by its path without suffix.
     """
-    device = device or default_device()
+    options = {"precision": precision, "backend": backend, "fast": fast, "track": track}
     reference = None if models else reference_checkpoint()
     methods: list[Method] = []
     if reference is not None:
-        methods += model_methods(reference, device, "reference", refine, track)
+        methods += model_methods(reference, device, "reference", refine, **options)
     paths = [resolve_checkpoint(p) for p in models]
     for i, path in enumerate(paths):
         if path.resolve() in {q.resolve() for q in paths[:i]}:
@@ -231,7 +249,7 @@ def resolve_methods(
             reference = path
         taken = {m.name for m in methods} | set(baselines)
         name = path.stem if path.stem not in taken else str(path.with_suffix(""))
-        methods += model_methods(path, device, name, refine, track)
+        methods += model_methods(path, device, name, refine, **options)
     methods += [baseline_method(name, equalize) for name in baselines]
     if track:
         methods += [m for m in (baseline_track_method(name, equalize) for name in baselines) if m is not None]
@@ -247,7 +265,10 @@ def run_bench(
     refine: str = "on",
     limit: int | None = None,
     extra_methods: Sequence[Method] = (),
-    device: torch.device | None = None,
+    device: torch.device | str | None = None,
+    precision: str = "fp32",
+    backend: str = "torch",
+    fast: bool = False,
     compensation: bool = False,
     photometric: bool = False,
     sheet: list[np.ndarray] | None = None,
@@ -266,7 +287,10 @@ def run_bench(
         limit: evaluate ``limit`` samples spread evenly over the dataset (None: all); with ``track``,
             ``limit`` whole sequences.
         extra_methods: more methods, reported after the others (a hook for callers and tests).
-        device: where models run; default CUDA when available, else CPU.
+        device: where models run (``cpu``, ``cuda``, ``cuda:N``); default CUDA when available, else CPU.
+        precision, backend: how models run (``fp32``/``bf16``/``fp16``, ``torch``/``onnxruntime``:
+            :func:`projreg.infer.open_network`).
+        fast: ``predict --fast``'s path for every model (network at ``FAST_MAX_SIDE``, ``FAST_REFINE``).
         compensation: also judge each method's compensation by what the camera sees
             (``comp_psnr``, ``comp_ssim`` and an ``uncompensated`` row; :mod:`projreg.closedloop`).
         photometric: with ``compensation``, also geometric-only vs geometric + photometric against the
@@ -298,7 +322,7 @@ def run_bench(
         if not indices:
             raise ProjregError(f"--data {data}: the dataset has no samples")
         methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device, refine=refine,
-                                             track=track)  # fmt: skip
+                                             precision=precision, backend=backend, fast=fast, track=track)  # fmt: skip
         methods += list(extra_methods)
         if not methods:
             raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")

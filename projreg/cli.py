@@ -181,18 +181,40 @@ class _ValBar:
 
 @app.command(cls=Command)
 def export(
-    checkpoint: Annotated[Path, typer.Option(help="Checkpoint written by `projreg train` (last.pt or best.pt).",
-                                             metavar="CKPT")],
-    out: Annotated[Path, typer.Option(help="Deployable checkpoint to write.", parser=output_path, metavar="FILE")],
+    checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint written by `projreg train` (last.pt or "
+                                                         "best.pt); with --onnx also `reference`, the default "
+                                                         "there.", metavar="CKPT")] = None,
+    out: Annotated[Path | None, typer.Option(help="Deployable checkpoint to write.", parser=output_path,
+                                             metavar="FILE")] = None,
+    onnx: Annotated[Path | None, typer.Option("--onnx", help="Write the network (no refinement) as an ONNX graph "
+                                              "instead (needs the optional onnx extra).", parser=output_path,
+                                              metavar="FILE.onnx")] = None,
+    opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (>= 16).", metavar="N")] = 18,
 ) -> None:
-    """Strip a training checkpoint to weights + config + provenance (what bench/predict need)."""
+    """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
+    from .onnx_export import export_checkpoint_onnx
     from .train import export_checkpoint
 
     try:
+        if (out is None) == (onnx is None):
+            raise ProjregError("give --out CKPT (a deployable checkpoint) or --onnx FILE.onnx (an ONNX graph of the "
+                               "network), one of them")  # fmt: skip
+        if onnx is not None:
+            written = export_checkpoint_onnx(checkpoint, onnx, opset=opset)
+            typer.echo(f"{written}: opset {opset}, {written.stat().st_size / 2**20:.2f} MiB", err=True)
+            return
+        if checkpoint is None:
+            raise ProjregError("--out needs --checkpoint: the `projreg train` checkpoint to strip")
         slim = export_checkpoint(checkpoint, out)
     except ProjregError as e:
         raise _fail(e) from None
     typer.echo(f"{out}: step {slim.get('step')}, {out.stat().st_size / 2**20:.2f} MiB", err=True)
+
+
+DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
+PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
+BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
+FAST_HELP = "Fast path: the network at <= 256 px, the refinement from the network's hypothesis only."
 
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
@@ -216,6 +238,10 @@ def bench(
                                                               "NAME: that model only).",
                                                     metavar="[NAME:]METRIC=VALUE")] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
+    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
+    precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
+    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="torch|onnxruntime")] = "torch",
+    fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
@@ -241,8 +267,9 @@ def bench(
         _torch_threads()
         with Bar("bench", quiet, unit="pair") as bar:
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
-                                   limit=limit, compensation=compensation, photometric=photometric,
-                                   sheet=rows, progress=bar.done, track=track)  # fmt: skip
+                                   limit=limit, device=device, precision=precision, backend=backend, fast=fast,
+                                   compensation=compensation, photometric=photometric, sheet=rows,
+                                   progress=bar.done, track=track)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
                           sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
@@ -274,6 +301,12 @@ def predict(
     max_flow: MaxFlow = None,
     track: Annotated[bool, typer.Option("--track", help="Folders of frames of one sequence, in name order: each "
                                                          "frame from the previous one's flow.")] = False,
+    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
+    precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
+    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="torch|onnxruntime")] = "torch",
+    batch_size: Annotated[int, typer.Option(help="Pairs per network call in folder mode (pairs of one size "
+                                                 "are batched).", metavar="N")] = 1,
+    fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     quiet: Quiet = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
@@ -283,7 +316,9 @@ def predict(
         _torch_threads()
         with Bar("predict", quiet, unit="pair") as bar:
             written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  refine=refine, progress=bar.done, max_flow=max_flow, track=track)  # fmt: skip
+                                  refine=refine, device=device, precision=precision, backend=backend,
+                                  batch_size=batch_size, fast=fast, progress=bar.done, max_flow=max_flow,
+                                  track=track)  # fmt: skip
     except ProjregError as e:
         raise _fail(e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed

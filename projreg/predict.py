@@ -25,7 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -37,10 +36,10 @@ from projsynth.sources import list_images, load_image
 
 from . import ProjregError
 from .confidence import CONFIDENT, Prediction
-from .evaluate import predict_flow
-from .frames import register_any_size
+from .frames import register_any_size, resize_to
+from .infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized, open_network
 from .model.net import SSJMFlow
-from .refine import GeometricRefiner
+from .refine import FAST_REFINE, GeometricRefiner
 from .track import Tracker
 from .train import load_checkpoint, model_from_checkpoint, require_model
 
@@ -64,10 +63,6 @@ def resolve_checkpoint(spec: Path | str | None) -> Path:
     return ref
 
 
-def default_device() -> torch.device:
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-
-
 def load_model(path: Path, device: torch.device) -> SSJMFlow:
     """A checkpoint written by ``projreg train``, on ``device``, in eval mode; errors name the file."""
     ckpt = require_model(load_checkpoint(Path(path)), path)
@@ -77,33 +72,6 @@ def load_model(path: Path, device: torch.device) -> SSJMFlow:
         raise ProjregError(f"{path}: weights do not match the checkpoint's model_config ({e}); "
                            "pass a checkpoint as `projreg train` or `projreg export` wrote it") from e  # fmt: skip
     return model.to(device).eval()
-
-
-def predict_resized(
-    model: SSJMFlow, projected: np.ndarray, captured: np.ndarray, device: torch.device, max_side: int
-) -> np.ndarray:
-    """Forward flow of one pair; pairs longer than ``max_side`` are shrunk for inference.
-
-    Args:
-        model: the network, in eval mode, on ``device``.
-        projected, captured: uint8 RGB ``(H, W, 3)`` of one size.
-        device: where the model runs.
-        max_side: the longer side the network sees at most; larger pairs are resized to fit
-            (``cv2.INTER_AREA``) and the flow brought back with ``cv2.INTER_LINEAR``, u scaled by
-            ``W / w'`` and v by ``H / h'``.
-
-    Returns:
-        float32 ``(H, W, 2)``, projected -> captured, in pixels of the original images.
-    """
-    h, w = projected.shape[:2]
-    s = max_side / max(h, w)
-    if s >= 1:
-        return predict_flow(model, projected, captured, device)
-    size = (max(1, round(w * s)), max(1, round(h * s)))  # cv2 order: (w', h')
-    small = [cv2.resize(img, size, interpolation=cv2.INTER_AREA) for img in (projected, captured)]
-    flow = predict_flow(model, small[0], small[1], device)  # [h', w', 2]
-    flow = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
-    return (flow * np.array([w / size[0], h / size[1]], np.float32)).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -210,7 +178,11 @@ def predict(
     model: Path | None = None,
     max_side: int = 1024,
     refine: bool = True,
-    device: torch.device | None = None,
+    device: str | None = None,
+    precision: str = "fp32",
+    backend: str = "torch",
+    batch_size: int = 1,
+    fast: bool = False,
     progress: Callable[[int, int], None] | None = None,
     max_flow: float | None = None,
     track: bool = False,
@@ -221,11 +193,16 @@ def predict(
         projected, captured: two image files, or two folders (pairs by identical relative names).
         out: the EXR file (file mode) or the output folder (folder mode).
         viz: colour PNG file (file mode) or folder (folder mode); None writes none.
-        model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model.
-        max_side: longest side the network sees; larger pairs are resized (see ``predict_resized``).
+        model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model; with
+            ``backend="onnxruntime"`` a graph written by ``projreg export --onnx``.
+        max_side: longest side the network sees; larger pairs are resized (:func:`projreg.infer.shrink`).
         refine: follow the network with the geometric refinement (``projreg.refine``), at the
             pair's own resolution; the EXR's ``valid`` is then its confidence >= ``CONFIDENT``.
-        device: default CUDA when available, else CPU.
+        device, precision, backend: where and how the network runs (:func:`projreg.infer.open_network`);
+            device None: CUDA when available, else the CPU.
+        batch_size: pairs per network call (folder mode; pairs of one size are batched).
+        fast: the fast path: the network sees at most ``FAST_MAX_SIDE`` and the refinement keeps only
+            the network's hypothesis on normalised images (``refine.FAST_REFINE``).
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flowviz.flow_picture``, with its legend).
@@ -236,6 +213,8 @@ def predict(
     """
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
+    if batch_size < 1:
+        raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
     if max_flow is not None:
         try:
             scale_of(np.zeros((1, 1, 2), np.float32), None, max_flow)
@@ -246,43 +225,77 @@ def predict(
                            "name order)")  # fmt: skip
     if track and not refine:
         raise ProjregError("--track follows each frame with the refinement; drop --no-refine")
+    if track and batch_size > 1:
+        raise ProjregError("--track registers frame after frame; drop --batch-size")
     jobs = plan_jobs(projected, captured, out, viz)
-    checkpoint = resolve_checkpoint(model)
+    weights = model if backend == "onnxruntime" else resolve_checkpoint(model)
     refuse_overwriting_inputs([(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
                               [(opt, p) for j in jobs for opt, p in (("--projected", j.projected),
                                                                      ("--captured", j.captured))]
-                              + [("--model", checkpoint)])  # fmt: skip
-    device = device or default_device()
-    net = load_model(checkpoint, device)
-    refiner = GeometricRefiner() if refine else None
-    def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
-        flow = predict_resized(net, img0, img1, device, max_side)
-        return Prediction(flow) if refiner is None else refiner.predict(img0, img1, flow)
-
-    tracker = Tracker(register, refiner) if track else None
+                              + ([("--model", Path(weights))] if weights is not None else []))  # fmt: skip
+    net = open_network(weights, backend=backend, device=device, precision=precision)
+    if fast:
+        max_side = min(max_side, FAST_MAX_SIDE)
+    refiner = (GeometricRefiner(FAST_REFINE) if fast else GeometricRefiner()) if refine else None
+    if track:
+        return _track(jobs, net, refiner, max_side, progress, max_flow)
     results = []
-    for k, job in enumerate(jobs):
-        img0, img1 = _load(job.projected), _load(job.captured)
-        pred = register_any_size(register if tracker is None else tracker, img0, img1)
-        valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
-        attrs = {"registered": "yes" if pred.registered else "no", "claimed": f"{valid.mean():.4f}",
-                 "valid_threshold": f"confidence >= {CONFIDENT}" if refiner else "all (network alone)"}  # fmt: skip
-        if pred.reason:
-            attrs["reason"] = pred.reason
-        if tracker is not None:
-            attrs["tracking"] = tracker.last
-        results.append(Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason,
-                                 tracker.last if tracker else ""))  # fmt: skip
-        try:
-            files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
-            if job.viz is not None:
-                files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
-            write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
-        except ProjsynthError as e:
-            raise ProjregError(str(e)) from e
-        if progress:
-            progress(k + 1, len(jobs))
+    for start in range(0, len(jobs), batch_size):
+        chunk = jobs[start : start + batch_size]
+        pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
+        flows = flows_resized(net, [(a, resize_to(b, a.shape)) for a, b in pairs], max_side, batch_size)
+        for job, (img0, img1), flow in zip(chunk, pairs, flows, strict=True):
+            def register(a: np.ndarray, b: np.ndarray, flow: np.ndarray = flow) -> Prediction:
+                return Prediction(flow) if refiner is None else refiner.predict(a, b, flow)
+
+            pred = register_any_size(register, img0, img1)
+            results.append(_write(job, pred, refiner is not None, max_flow))
+            if progress:
+                progress(len(results), len(jobs))
     return results
+
+
+def _track(
+    jobs: list[Job],
+    net: TorchNetwork | OnnxNetwork,
+    refiner: GeometricRefiner,
+    max_side: int,
+    progress: Callable[[int, int], None] | None,
+    max_flow: float | None,
+) -> list[Predicted]:
+    """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`)."""
+
+    def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
+        return refiner.predict(img0, img1, flows_resized(net, [(img0, img1)], max_side)[0])
+
+    tracker = Tracker(register, refiner)
+    results = []
+    for job in jobs:
+        pred = register_any_size(tracker, _load(job.projected), _load(job.captured))
+        results.append(_write(job, pred, True, max_flow, tracking=tracker.last))
+        if progress:
+            progress(len(results), len(jobs))
+    return results
+
+
+def _write(job: Job, pred: Prediction, refined: bool, max_flow: float | None, tracking: str = "") -> Predicted:
+    """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
+    written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``)."""
+    valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
+    attrs = {"registered": "yes" if pred.registered else "no", "claimed": f"{valid.mean():.4f}",
+             "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)"}  # fmt: skip
+    if pred.reason:
+        attrs["reason"] = pred.reason
+    if tracking:
+        attrs["tracking"] = tracking
+    try:
+        files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
+        if job.viz is not None:
+            files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
+        write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    return Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason, tracking)
 
 
 def _load(path: Path) -> np.ndarray:

@@ -38,12 +38,14 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from . import ProjregError
 from .baselines import homography_flow, proper_homography, to_gray
 from .confidence import CONFIDENT, Prediction, pixel_confidence
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
+_BLAS = ThreadpoolController()
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,8 @@ class RefineConfig:
     control points without texture under them at zero residual; ``ncc_sigma``: Gaussian window of the
     selection score (always on normalised images); ``contrast_sigma``: Gaussian window of the local
     contrast normalisation (0: none); ``plain_pass``: also try both hypotheses on the images without
-    normalisation (four candidates instead of two).
+    normalisation (four candidates instead of two); ``identity_pass``: also start from the identity
+    (for pairs where the network is lost; without it, only when the network's flow has no homography).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -69,6 +72,7 @@ class RefineConfig:
     ncc_sigma: float = 7.0
     contrast_sigma: float = 16.0
     plain_pass: bool = True
+    identity_pass: bool = True
     texture_floor: float = 256.0
     min_evidence: float = 0.01
     max_area_ratio: float = 6.0
@@ -86,6 +90,11 @@ class RefineConfig:
                 raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
         if not self.contrast_sigma >= 0:
             raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
+
+
+# ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
+# four); measured in docs/benchmarks.md ("Inference latency")
+FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False)
 
 
 @dataclass(frozen=True)
@@ -131,7 +140,8 @@ class GeometricRefiner:
             flow: the network's flow for the pair, float ``(H, W, 2)`` (or, tracking, the previous
                 frame's: :mod:`projreg.track`).
             identity: also try the identity hypothesis (tracking leaves it out while ``flow`` has a
-                homography fit; its ``hypothesis`` is then "network" unless that fit failed).
+                homography fit; its ``hypothesis`` is then "network" unless that fit failed); the
+                config's ``identity_pass`` off leaves it out always (``FAST_REFINE``).
 
         Returns:
             The :class:`~projreg.confidence.Prediction` (float32 ``(H, W, 2)`` forward flow, the pixels
@@ -167,7 +177,7 @@ class GeometricRefiner:
         # regions too, and the refit below keeps to the textured pixels
         fit = fit_homography(flow, step, cfg.ransac_px, None, cfg.max_area_ratio, cfg.min_hull)
         hypotheses = {"network": (None if fit is None else fit[0], flow), "identity": (np.eye(3), np.zeros_like(flow))}
-        if not identity and fit is not None:
+        if not (identity and cfg.identity_pass) and fit is not None:
             del hypotheses["identity"]
         cands, scores = {}, {}
         for kind, (gray0, gray1) in images.items():
@@ -437,10 +447,14 @@ def fit_bspline(
     ok = np.isfinite(f).all(axis=1)
     f, w0 = np.where(ok[:, None], f, 0.0), np.where(ok, w0, 0.0)
     fit = np.zeros_like(f)
-    for it in range(iterations):
-        wi = w0 if it == 0 else w0 / (1 + (np.linalg.norm(f - fit, axis=1) / robust) ** 2)
-        c = np.linalg.solve(A.T @ (A * wi[:, None]) + ridge * np.eye(A.shape[1]), A.T @ (f * wi[:, None]))  # [K, 2]
-        fit = A @ c
+    # one BLAS thread: these products are small, and a second thread contending with torch's OpenMP
+    # workers (or another process) made this fit take 1.5-4 s instead of 50 ms on the 2-core VM
+    with _BLAS.limit(limits=1, user_api="blas"):
+        for it in range(iterations):
+            wi = w0 if it == 0 else w0 / (1 + (np.linalg.norm(f - fit, axis=1) / robust) ** 2)
+            lhs = A.T @ (A * wi[:, None]) + ridge * np.eye(A.shape[1])  # [K, K]
+            c = np.linalg.solve(lhs, A.T @ (f * wi[:, None]))  # [K, 2]
+            fit = A @ c
     c = c.reshape(ky, kx, 2)
     return np.stack([By @ c[..., i] @ Bx.T for i in range(2)], axis=-1).astype(np.float32)
 

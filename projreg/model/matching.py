@@ -124,7 +124,12 @@ def local_window_scores(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> torc
     inside = F.pad(torch.ones(h, w, device=f0.device, dtype=torch.bool), (r, r, r, r))  # [H+2r, W+2r]
     outside = ~torch.stack([inside[ys, xs] for ys, xs in _window_slices(r, h, w)], dim=0)  # [K, H, W]
     dtype = torch.promote_types(f0.dtype, f1.dtype)
-    scores = _WindowDot.apply(f0.to(dtype) / math.sqrt(c), f1.to(dtype).contiguous(), r)  # [B, K, H, W]
+    f0, f1 = f0.to(dtype) / math.sqrt(c), f1.to(dtype).contiguous()
+    if torch.is_grad_enabled() and (f0.requires_grad or f1.requires_grad):
+        scores = _WindowDot.apply(f0, f1, r)  # [B, K, H, W]
+    else:  # inference and export: plain operations (the exporter traces ``out=`` arguments very slowly)
+        f1p = F.pad(f1, (r, r, r, r))  # [B, C, H+2r, W+2r]
+        scores = torch.stack([(f0 * f1p[:, :, ys, xs]).sum(dim=1) for ys, xs in _window_slices(r, h, w)], dim=1)
     return scores.masked_fill(outside, float("-inf"))
 
 

@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from .. import ProjregError
@@ -170,6 +169,23 @@ class SSJMFlow(nn.Module):
         self.propagate4 = FlowPropagation(c, radius=1) if refine else None
         self.upsampler = ConvexUpsampler(c, upsampler_channels, factor=4 if refine else 8)
 
+    @property
+    def feature_dtype(self) -> torch.dtype:
+        """dtype of the feature stages: float32 unless :meth:`cast_features` changed it."""
+        return self.backbone.stem[0].weight.dtype
+
+    def cast_features(self, dtype: torch.dtype) -> SSJMFlow:
+        """Run the feature stages (backbone, SSJM, transformer) in ``dtype``, weights included.
+
+        Matching, propagation, the 1/4 refinement and upsampling keep float32 weights and run in
+        float32 whatever ``dtype`` is (as under autocast): correlation softmaxes and their expected
+        positions are sub-pixel coordinates, which bfloat16 rounds to 1/2 px at 128 px. Returns self.
+        """
+        for stage in (self.backbone, self.ssjm, self.transformer):
+            if stage is not None:
+                stage.to(dtype)
+        return self
+
     def forward(self, img0: torch.Tensor, img1: torch.Tensor) -> list[torch.Tensor]:
         if img0.dim() != 4 or img0.shape[1] != 3 or img0.shape != img1.shape:
             raise ProjregError(
@@ -177,8 +193,8 @@ class SSJMFlow(nn.Module):
             )
         b, _, h, w = img0.shape
         m = self.pad_multiple
-        x = torch.cat([img0, img1], dim=0).to(self.mean.dtype)  # [2B, 3, H, W]
-        x = F.pad((x - self.mean) / self.std, (0, (-w) % m, 0, (-h) % m), mode="replicate")  # [2B, 3, H', W']
+        x = (torch.cat([img0, img1], dim=0).float() - self.mean) / self.std  # [2B, 3, H, W]
+        x = pad_replicate(x, m).to(self.feature_dtype)  # [2B, 3, H', W']
 
         f8, f4 = self.backbone(x)  # [2B, C, H'/8, W'/8], [2B, C, H'/4, W'/4] or None
         if self.ssjm is not None:
@@ -212,6 +228,18 @@ class SSJMFlow(nn.Module):
         flow = self.propagate4(f0, flow)  # [B, 2, H'/4, W'/4]
         preds.append(self.upsampler(flow, f0))
         return preds
+
+
+def pad_replicate(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """``[B, C, H, W]`` replicate-padded at the bottom and right to multiples of ``multiple``.
+
+    An index gather rather than ``F.pad``: the padded size ``multiple * ceil(H / multiple)`` is then
+    visibly a multiple, so an exported graph (``projreg.onnx``) pads any height and width itself.
+    """
+    h, w = x.shape[-2:]
+    rows = torch.arange((h + multiple - 1) // multiple * multiple, device=x.device).clamp(max=h - 1)  # [H']
+    cols = torch.arange((w + multiple - 1) // multiple * multiple, device=x.device).clamp(max=w - 1)  # [W']
+    return x.index_select(2, rows).index_select(3, cols)
 
 
 def _at_least_float32(x: torch.Tensor) -> torch.Tensor:

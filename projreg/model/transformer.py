@@ -72,15 +72,26 @@ def shifted_window_mask(h: int, w: int, num_splits: int, device=None) -> torch.T
         bool ``[s * s, T, T]`` with ``T = H/s * W/s``: true where attention is allowed.
     """
     wh, ww = h // num_splits, w // num_splits
-    sh, sw = wh // 2, ww // 2
-    label = torch.zeros(h, w, dtype=torch.long, device=device)
-    n = 0
-    for ys in (slice(0, h - wh), slice(h - wh, h - sh), slice(h - sh, h)):
-        for xs in (slice(0, w - ww), slice(w - ww, w - sw), slice(w - sw, w)):
-            label[ys, xs] = n
-            n += 1
+    # rows (columns) fall in three bands: [0, h - wh), [h - wh, h - wh/2), [h - wh/2, h); comparisons
+    # rather than slice assignments, so the mask follows a symbolic size in an exported graph
+    ys = torch.arange(h, device=device)
+    xs = torch.arange(w, device=device)
+    band_y = (ys >= h - wh).long() + (ys >= h - wh // 2).long()  # [H]
+    band_x = (xs >= w - ww).long() + (xs >= w - ww // 2).long()  # [W]
+    label = 3 * band_y[:, None] + band_x[None, :]  # [H, W]
     win = split_windows(label[None, :, :, None], num_splits)[..., 0]  # [s*s, T]
     return win[:, :, None] == win[:, None, :]
+
+
+def roll2d(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
+    """``torch.roll(x, (dy, dx), dims=(1, 2))`` for ``[B, H, W, C]`` and ``0 <= dy <= H``, ``0 <= dx <= W``.
+
+    Written as two slices and a concatenation per axis: ``torch.roll`` with shifts that depend on the
+    input's size does not export to ONNX (docs/model.md, "Export").
+    """
+    h, w = x.shape[1], x.shape[2]
+    x = torch.cat([x[:, h - dy :], x[:, : h - dy]], dim=1)
+    return torch.cat([x[:, :, w - dx :], x[:, :, : w - dx]], dim=2)
 
 
 def window_attention(
@@ -99,12 +110,12 @@ def window_attention(
     """
     b, _, c = q.shape
     shifted = shifted and num_splits > 1
-    shift = (-((h // num_splits) // 2), -((w // num_splits) // 2))
+    sh, sw = (h // num_splits) // 2, (w // num_splits) // 2  # the windows move up and left by half a window
     out = []
     for t in (q, k, v):
         t = t.view(b, h, w, c)
         if shifted:
-            t = torch.roll(t, shifts=shift, dims=(1, 2))
+            t = roll2d(t, h - sh, w - sw)
         out.append(split_windows(t, num_splits))  # [B*s*s, T, C]
     qw, kw, vw = out
     scores = torch.matmul(qw / math.sqrt(c), kw.transpose(1, 2))  # [B*s*s, T, T]
@@ -115,7 +126,7 @@ def window_attention(
     msg = torch.matmul(torch.softmax(scores, dim=-1), vw)  # [B*s*s, T, C]
     msg = merge_windows(msg, num_splits, h, w)  # [B, H, W, C]
     if shifted:
-        msg = torch.roll(msg, shifts=(-shift[0], -shift[1]), dims=(1, 2))
+        msg = roll2d(msg, sh, sw)
     return msg.reshape(b, h * w, c)
 
 

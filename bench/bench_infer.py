@@ -1,0 +1,149 @@
+"""Inference latency of the registration network and the fast path (docs/benchmarks.md, "Inference latency").
+
+Usage:
+    python bench/bench_infer.py latency [--onnx build/onnx/reference.onnx] [--repeats 3] [--sizes 384x512,768x1024]
+    python bench/bench_infer.py fast --data build/fresh-test [--onnx build/onnx/reference.onnx] [--limit 64]
+
+``latency``: ms per pair of the network alone on random images, for ``small`` (the shipped reference
+weights) and ``base`` (random initialisation: the same operations, so the same time), PyTorch fp32 and
+bf16 and, given ``--onnx`` (a graph of the reference, ``projreg export --onnx``), onnxruntime; batch 1
+and 8 (8 at the smaller size only: the global softmaxes hold (H W / 64)^2 floats per pair, 0.6 GB at
+768 x 1024). Median of ``--repeats`` calls after one warm-up call; ms per pair = call / batch.
+
+``fast``: each inference option on the samples of a dataset: EPE (pooled over valid pixels, px) and
+median ms per pair, network and refinement timed apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from projreg.evaluate import sample_indices
+from projreg.infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
+from projreg.metrics import EPEAccumulator
+from projreg.model.net import build_model
+from projreg.predict import load_model, reference_checkpoint
+from projreg.refine import FAST_REFINE, GeometricRefiner
+from projsynth.dataset import parse_size
+from projsynth.shards import ShardReader
+
+CPU = torch.device("cpu")
+
+
+def _ms(call, repeats: int) -> tuple[float, float]:
+    """Median wall-clock and process-CPU milliseconds of ``call`` over ``repeats`` calls after a warm-up.
+
+    The CPU time is what the process itself used (all its threads): on a VM shared with other jobs it
+    stays near the idle figure while the wall clock grows with the load.
+    """
+    call()  # warm-up: allocator, lazy initialisation, onnxruntime's first run
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        call()
+        wall.append(1000 * (time.perf_counter() - t0))
+        cpu.append(1000 * (time.process_time() - c0))
+    return statistics.median(wall), statistics.median(cpu)
+
+
+def _machine() -> str:
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    return (f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__} ({torch.get_num_threads()} "
+            f"threads), load average {load}")  # fmt: skip
+
+
+def latency(args: argparse.Namespace) -> None:
+    small = load_model(reference_checkpoint(), CPU)
+    base = build_model("base").eval()
+    variants = [("small", "torch fp32", lambda: TorchNetwork(small, CPU)),
+                ("small", "torch bf16", lambda: TorchNetwork(load_model(reference_checkpoint(), CPU), CPU,
+                                                             torch.bfloat16)),
+                ("base", "torch fp32", lambda: TorchNetwork(base, CPU)),
+                ("base", "torch bf16", lambda: TorchNetwork(build_model("base").eval(), CPU,
+                                                            torch.bfloat16))]  # fmt: skip
+    if args.onnx:
+        variants.insert(2, ("small", "onnxruntime fp32", lambda: OnnxNetwork(args.onnx, CPU)))
+    rng = np.random.default_rng(0)
+    print(f"# {_machine()}")
+    print("| model | runtime | size | batch | ms per pair (wall) | CPU ms per pair |\n|---|---|---|---|---|---|")
+    for name, runtime, make in variants:
+        net = make()
+        for size in args.sizes.split(","):
+            h, w = parse_size(size)
+            for batch in (1, 8) if h * w <= 384 * 512 else (1,):
+                img = rng.integers(0, 256, (batch, h, w, 3), dtype=np.uint8)
+                wall, cpu = _ms(lambda net=net, img=img: net(img, img[:, ::-1, ::-1].copy()), args.repeats)
+                print(f"| {name} | {runtime} | {h} x {w} | {batch} | {wall / batch:.0f} | {cpu / batch:.0f} |",
+                      flush=True)  # fmt: skip
+        del net
+    print(f"# {_machine()}")
+
+
+def fast(args: argparse.Namespace) -> None:
+    reader = ShardReader(args.data)
+    nets = {"torch": TorchNetwork(load_model(reference_checkpoint(), CPU), CPU)}
+    if args.onnx:
+        nets["onnxruntime"] = OnnxNetwork(args.onnx, CPU)
+    # (label, backend, network max side, refinement config or None)
+    fast = f"network at {FAST_MAX_SIDE} px"
+    options = [("network alone", "torch", 1024, None), ("network alone", "onnxruntime", 1024, None),
+               ("network + refinement (default)", "torch", 1024, "full"),
+               ("network + one-candidate refinement", "torch", 1024, "fast"),
+               (f"{fast} alone", "onnxruntime", FAST_MAX_SIDE, None),
+               (f"{fast} + one-candidate refinement (--fast)", "torch", FAST_MAX_SIDE, "fast"),
+               (f"{fast} + one-candidate refinement (--fast)", "onnxruntime", FAST_MAX_SIDE, "fast")]  # fmt: skip
+    options = [o for o in options if o[1] in nets]
+    refiners = {"full": GeometricRefiner(), "fast": GeometricRefiner(FAST_REFINE)}
+    indices = sample_indices(len(reader), args.limit)
+    samples = [reader.read(k) for k in indices]
+    print(f"# {args.data}: {len(samples)} samples; {_machine()}")
+    print("| option | runtime | EPE | s0-10 | s10-40 | s40+ | network ms | refinement ms | total ms | total CPU ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for label, backend, side, ref in options:
+        acc, t_net, t_ref, t_cpu = EPEAccumulator(), [], [], []
+        flows_resized(nets[backend], [(samples[0]["projected"], samples[0]["captured"])], side)  # warm-up
+        for s in samples:
+            t0, c0 = time.perf_counter(), time.process_time()
+            flow = flows_resized(nets[backend], [(s["projected"], s["captured"])], side)[0]
+            t1 = time.perf_counter()
+            if ref is not None:
+                flow = refiners[ref].predict(s["projected"], s["captured"], flow).flow
+            t2 = time.perf_counter()
+            t_net.append(1000 * (t1 - t0))
+            t_ref.append(1000 * (t2 - t1))
+            t_cpu.append(1000 * (time.process_time() - c0))
+            acc.add(flow, s["flow"], s["valid"])
+        r = acc.result()
+        net_ms, ref_ms = statistics.median(t_net), statistics.median(t_ref)
+        total, cpu = statistics.median(np.add(t_net, t_ref)), statistics.median(t_cpu)
+        print(f"| {label} | {backend} | {r['epe']:.2f} | {r['s0-10']:.2f} | {r['s10-40']:.2f} | {r['s40+']:.2f} | "
+              f"{net_ms:.0f} | {ref_ms:.0f} | {total:.0f} | {cpu:.0f} |", flush=True)  # fmt: skip
+    reader.close()
+    print(f"# {_machine()}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    lat = sub.add_parser("latency")
+    lat.add_argument("--onnx", type=Path)
+    lat.add_argument("--repeats", type=int, default=3)
+    lat.add_argument("--sizes", default="384x512,768x1024")
+    fst = sub.add_parser("fast")
+    fst.add_argument("--data", type=Path, required=True)
+    fst.add_argument("--onnx", type=Path)
+    fst.add_argument("--limit", type=int)
+    args = ap.parse_args()
+    latency(args) if args.what == "latency" else fast(args)
+
+
+if __name__ == "__main__":
+    main()
