@@ -16,9 +16,9 @@ import numpy as np
 import torch
 
 from projreg.baselines import homography_flow, make_baseline, to_gray
+from projreg.checkpoint import load_model, resolve_checkpoint
 from projreg.evaluate import predict_flow, sample_indices
 from projreg.metrics import EPEAccumulator
-from projreg.predict import load_model, resolve_checkpoint
 from projreg.refine import (
     GeometricRefiner,
     RefineConfig,

@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from projreg.checkpoint import load_model, reference_checkpoint
 from projreg.evaluate import sample_indices
 from projreg.infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
 from projreg.metrics import EPEAccumulator
 from projreg.model.net import build_model
-from projreg.predict import load_model, reference_checkpoint
 from projreg.refine import FAST_REFINE, GeometricRefiner
 from projsynth.dataset import parse_size
 from projsynth.shards import ShardReader

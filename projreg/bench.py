@@ -52,13 +52,13 @@ from projsynth.shards import ShardReader
 
 from . import ProjregError
 from .baselines import make_baseline
+from .checkpoint import reference_checkpoint, resolve_checkpoint
 from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_header, sheet_row
 from .confidence import Prediction, as_prediction
 from .evaluate import sample_indices
 from .frames import register_any_size
 from .infer import FAST_MAX_SIDE, flows_resized, open_network
 from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
-from .predict import reference_checkpoint, resolve_checkpoint
 from .refine import FAST_REFINE, GeometricRefiner
 from .track import FlowTracker, JitterAccumulator, Tracker
 

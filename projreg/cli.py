@@ -192,8 +192,8 @@ def export(
     opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (>= 16).", metavar="N")] = 18,
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
+    from .checkpoint import export_checkpoint
     from .onnx_export import export_checkpoint_onnx
-    from .train import export_checkpoint
 
     try:
         if (out is None) == (onnx is None):

@@ -150,7 +150,7 @@ def open_network(
     Raises:
         ProjregError: one line naming the option that cannot be honoured here.
     """
-    from .predict import load_model, resolve_checkpoint
+    from .checkpoint import load_model, resolve_checkpoint
 
     if backend not in BACKENDS:
         raise ProjregError(f"--backend {backend!r}: expected one of {', '.join(BACKENDS)}")

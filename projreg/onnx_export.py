@@ -137,7 +137,7 @@ def export_checkpoint_onnx(checkpoint: Path | str | None, out: Path, *, opset: i
     Returns:
         ``out``; its metadata names the checkpoint and its SHA-256.
     """
-    from .predict import load_model, resolve_checkpoint
+    from .checkpoint import load_model, resolve_checkpoint
 
     if opset < MIN_OPSET:
         raise ProjregError(f"--opset {opset}: the network's grid_sample needs opset >= {MIN_OPSET}")

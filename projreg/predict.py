@@ -19,14 +19,12 @@ Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the pr
 
 from __future__ import annotations
 
-import importlib.resources
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from projsynth import ProjsynthError, flowio
 from projsynth.export import png_bytes
@@ -35,43 +33,12 @@ from projsynth.flowviz import flow_picture, scale_of
 from projsynth.sources import list_images, load_image
 
 from . import ProjregError
+from .checkpoint import resolve_checkpoint
 from .confidence import CONFIDENT, Prediction
 from .frames import register_any_size, resize_to
 from .infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized, open_network
-from .model.net import SSJMFlow
 from .refine import FAST_REFINE, GeometricRefiner
 from .track import Tracker
-from .train import load_checkpoint, model_from_checkpoint, require_model
-
-NO_REFERENCE = "no shipped reference model yet; pass --model CKPT (train one with `projreg train`)"
-
-
-def reference_checkpoint() -> Path | None:
-    """The shipped reference model ``projreg/weights/reference.pt``, or None while none ships."""
-    ref = importlib.resources.files("projreg").joinpath("weights", "reference.pt")
-    return Path(str(ref)) if ref.is_file() else None
-
-
-def resolve_checkpoint(spec: Path | str | None) -> Path:
-    """``spec`` as a checkpoint path; None or the name ``reference`` (when no such file exists) is the
-    shipped reference model. Raises ProjregError when that is asked for and none ships."""
-    if spec is not None and not (str(spec) == "reference" and not Path(spec).exists()):
-        return Path(spec)
-    ref = reference_checkpoint()
-    if ref is None:
-        raise ProjregError(NO_REFERENCE)
-    return ref
-
-
-def load_model(path: Path, device: torch.device) -> SSJMFlow:
-    """A checkpoint written by ``projreg train``, on ``device``, in eval mode; errors name the file."""
-    ckpt = require_model(load_checkpoint(Path(path)), path)
-    try:
-        model = model_from_checkpoint(ckpt)
-    except (ValueError, ProjregError) as e:
-        raise ProjregError(f"{path}: weights do not match the checkpoint's model_config ({e}); "
-                           "pass a checkpoint as `projreg train` or `projreg export` wrote it") from e  # fmt: skip
-    return model.to(device).eval()
 
 
 @dataclass(frozen=True)

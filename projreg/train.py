@@ -38,10 +38,11 @@ from projsynth import ProjsynthError
 from projsynth.flowio import write_atomic
 
 from . import ProjregError, __version__
+from .checkpoint import atomic_save, load_checkpoint
 from .data import Augment, ShardDataset, StreamSampler
 from .evaluate import evaluate
 from .loss import sequence_loss
-from .model.net import SSJMFlow, build_model, checked_config, count_parameters
+from .model.net import SSJMFlow, build_model, count_parameters
 
 CSV_FIELDS = ("step", "kind", "loss", "epe", "s0-10", "s10-40", "s40+", "px1", "px3", "px5", "lr", "samples_per_s")
 
@@ -90,20 +91,6 @@ class TrainConfig:
                 raise ProjregError(msg)
 
 
-def _atomic_save(obj: dict, path: Path, then: str = "then --resume") -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        torch.save(obj, tmp)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except (OSError, RuntimeError) as e:  # torch.save reports a missing or unwritable folder as RuntimeError
-        tmp.unlink(missing_ok=True)
-        reason = getattr(e, "strerror", None) or e
-        raise ProjregError(f"{path}: cannot write checkpoint ({reason}); free space or fix permissions, "
-                           f"{then}") from e  # fmt: skip
-
-
 def _next_batch(batches) -> dict:
     """The next batch; an error inside a loader worker becomes one line (torch wraps it in a traceback)."""
     try:
@@ -111,69 +98,6 @@ def _next_batch(batches) -> dict:
     except ProjregError as e:
         lines = [line for line in str(e).splitlines() if line.strip()]
         raise ProjregError(lines[-1].removeprefix("projreg.ProjregError: ") if lines else str(e)) from None
-
-
-def load_checkpoint(path: Path) -> dict:
-    """Load a checkpoint safely (``weights_only=True``); errors name the file."""
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except FileNotFoundError:
-        raise ProjregError(f"{path}: no such checkpoint") from None
-    except IsADirectoryError:
-        raise ProjregError(f"{path}: is a folder; pass a checkpoint file (RUN/checkpoints/last.pt)") from None
-    except Exception as e:  # torch raises many types, with multi-line messages that suggest weights_only=False
-        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}); "
-                           "pass a checkpoint written by `projreg train`") from e  # fmt: skip
-
-
-def export_checkpoint(src: Path, dst: Path) -> dict:
-    """Write the deployable part of a training checkpoint: weights, architecture and provenance.
-
-    Drops the optimizer, scheduler and RNG states (two thirds of a ``last.pt``); keeps ``model``,
-    ``model_config``, ``step``, ``best_epe``, ``train_config`` and ``version``, so ``bench`` and
-    ``predict`` load the result like any checkpoint and it still says how it was trained.
-
-    Returns:
-        The exported dictionary.
-    """
-    if Path(dst).resolve() == Path(src).resolve():
-        raise ProjregError(f"--out {dst}: is the checkpoint being exported; write the export to another file")
-    ckpt = require_model(load_checkpoint(Path(src)), src)
-    try:
-        model_from_checkpoint(ckpt)  # what bench and predict will do with the export
-    except (ValueError, ProjregError) as e:
-        raise ProjregError(f"{src}: weights do not match the checkpoint's model_config ({e}); not exported") from e
-    slim = {k: ckpt[k] for k in ("model", "model_config", "step", "best_epe", "train_config", "version") if k in ckpt}
-    slim["model"] = {k: v.detach().clone().contiguous() for k, v in slim["model"].items()}  # no shared storage
-    try:
-        Path(dst).parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ProjregError(f"--out {dst}: cannot create its folder ({e.strerror or e})") from e
-    _atomic_save(slim, Path(dst), then="then export again")
-    return slim
-
-
-def require_model(ckpt, path: Path) -> dict:
-    """``ckpt`` if it holds a model (``model`` and ``model_config``), else a ProjregError naming ``path``."""
-    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
-        raise ProjregError(f"{path}: not a projreg checkpoint (no model / model_config); pass one from `projreg train`")
-    return ckpt
-
-
-def model_from_checkpoint(ckpt: dict) -> SSJMFlow:
-    """The network a checkpoint describes, its ``model_config`` bounded (``checked_config``) before the
-    model is built; an out-of-bounds config raises ProjregError, a mismatch between weights and config
-    a one-line ValueError."""
-    try:
-        model = SSJMFlow(**checked_config(ckpt["model_config"]))
-        model.load_state_dict(ckpt["model"])
-    except (TypeError, RuntimeError) as e:  # load_state_dict lists every mismatched tensor on its own line
-        lines = [line.strip() for line in str(e).splitlines() if line.strip()]
-        raise ValueError(" ".join(lines[1:3] if len(lines) > 1 else lines)) from e
-    bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not torch.isfinite(v).all()]
-    if bad:
-        raise ValueError(f"non-finite weights in {bad[0]}" + (f" and {len(bad) - 1} more" if len(bad) > 1 else ""))
-    return model
 
 
 def _rng_state() -> dict:
@@ -321,7 +245,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
         if bad is not None:
             raise ProjregError(f"non-finite {bad} after step {step} (--lr too high?); stopped without writing "
                                f"{path.name}, {_last_good(last_path)}")  # fmt: skip
-        _atomic_save({"model": model.state_dict(), "model_config": model.config, "optimizer": opt.state_dict(),
+        atomic_save({"model": model.state_dict(), "model_config": model.config, "optimizer": opt.state_dict(),
                       "scheduler": sched.state_dict(), "rng": _rng_state(), "step": step, "best_epe": best,
                       "train_config": asdict(cfg), "version": __version__}, path)  # fmt: skip
 

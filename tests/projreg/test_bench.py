@@ -9,11 +9,11 @@ from typer.testing import CliRunner
 import projreg.bench
 from projreg import ProjregError
 from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices, to_markdown
+from projreg.checkpoint import load_model
 from projreg.cli import app
 from projreg.confidence import Prediction, as_prediction
 from projreg.evaluate import predict_flow
 from projreg.metrics import KEYS, EPEAccumulator
-from projreg.predict import load_model
 from projreg.refine import GeometricRefiner
 from projsynth.shards import ShardReader
 

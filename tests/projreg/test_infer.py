@@ -8,10 +8,10 @@ from typer.testing import CliRunner
 
 from projreg import ProjregError
 from projreg.bench import model_methods
+from projreg.checkpoint import load_model
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.infer import FAST_MAX_SIDE, TorchNetwork, flows_resized, parse_device, parse_precision
-from projreg.predict import load_model
 from projreg.refine import FAST_REFINE, GeometricRefiner
 from projsynth.flowio import read_flow_exr
 from projsynth.shards import ShardReader

@@ -4,10 +4,11 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+import projreg.checkpoint
 import projreg.predict
+from projreg.checkpoint import load_model
 from projreg.cli import app
 from projreg.evaluate import predict_flow
-from projreg.predict import load_model
 from projreg.refine import GeometricRefiner
 from projsynth.flowio import flow_to_color, read_flow_exr
 from projsynth.shards import ShardReader
@@ -130,7 +131,7 @@ def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeyp
     blocker.write_bytes(b"a file where the --viz folder would be")
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", blocker / "v.png", *m), blocker)
     assert not out.exists()  # the flow and its picture, or neither
-    monkeypatch.setattr(projreg.predict, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.checkpoint, "reference_checkpoint", lambda: None)
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
                     "--model")  # fmt: skip
 

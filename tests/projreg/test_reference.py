@@ -16,12 +16,11 @@ import torch
 from typer.testing import CliRunner
 
 from projreg.bench import check_thresholds, parse_threshold
+from projreg.checkpoint import load_checkpoint, load_model, reference_checkpoint
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.model.net import MODEL_CONFIGS
-from projreg.predict import load_model, reference_checkpoint
 from projreg.refine import GeometricRefiner
-from projreg.train import load_checkpoint
 from projsynth.dataset import resolve_plan
 from projsynth.flowio import read_flow_exr
 from projsynth.generate import generate

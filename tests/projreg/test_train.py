@@ -12,8 +12,9 @@ import torch
 from typer.testing import CliRunner
 
 from projreg import ProjregError
+from projreg.checkpoint import export_checkpoint, load_checkpoint
 from projreg.cli import app
-from projreg.train import TrainConfig, export_checkpoint, load_checkpoint, train
+from projreg.train import TrainConfig, train
 
 from .conftest import make_shards
 
