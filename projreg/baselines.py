@@ -179,10 +179,10 @@ class RefineOnly:
     name = "refine-only"
 
     def __init__(self, equalize: bool = False) -> None:
-        from .refine import GeometricRefiner  # refine builds on this module's homography helpers
+        from .refine import GeometricRefiner, RefineConfig  # refine builds on this module's helpers
 
         self._sift = SiftRansac(equalize)
-        self._refiner = GeometricRefiner()
+        self._refiner = GeometricRefiner(RefineConfig(sift_pass=False))  # its SIFT start comes from here
 
     def predict(self, projected: np.ndarray, captured: np.ndarray) -> Prediction:
         """The refined flow with the pixels it claims (:meth:`GeometricRefiner.predict`)."""

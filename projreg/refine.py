@@ -9,7 +9,9 @@ images:
 0. **Local contrast normalisation** of both gray images (Gaussian window): blending, daylight and
    transparency change contrast differently across the frame, and DIS assumes it constant.
 1. **Projective fit**: a homography fitted to the network's flow (MAGSAC++ on a grid of its
-   correspondences). A second hypothesis, the identity, covers pairs where the network is lost.
+   correspondences). A second hypothesis, the identity, covers pairs where the network is lost; a
+   third, a SIFT + RANSAC homography of the pair (when SIFT finds one), pairs where the network's
+   hypothesis is wrong but the images' features still match.
 2. **Photometric residual**: the captured image is warped into the projector frame by the current
    model, and DIS optical flow (mean-normalised patches) measures the remaining small residual;
    the homography is refitted once to ``model + residual`` and the residual measured again.
@@ -17,7 +19,7 @@ images:
    control points), weighted by the projected image's texture and made robust by iteratively
    reweighted least squares (Cauchy weights), so DIS's noise in flat or washed-out regions is
    averaged away instead of copied.
-4. **Selection**: steps 1-3 run from both hypotheses, on the normalised and on the plain gray
+4. **Selection**: steps 1-3 run from every hypothesis, on the normalised and on the plain gray
    images (normalisation helps under blending and transparency, hurts some large, well-lit
    motions); each of the four flows is scored by the median local normalised cross-correlation
    (Gaussian window) between the normalised projected image and the normalised captured image
@@ -41,7 +43,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from . import ProjregError
-from .baselines import homography_flow, proper_homography, to_gray
+from .baselines import SiftRansac, homography_flow, proper_homography, to_gray
 from .confidence import CONFIDENT, Prediction, pixel_confidence
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
@@ -59,7 +61,10 @@ class RefineConfig:
     selection score (always on normalised images); ``contrast_sigma``: Gaussian window of the local
     contrast normalisation (0: none); ``plain_pass``: also try both hypotheses on the images without
     normalisation (four candidates instead of two); ``identity_pass``: also start from the identity
-    (for pairs where the network is lost; without it, only when the network's flow has no homography).
+    (for pairs where the network is lost; without it, only when the network's flow has no homography);
+    ``sift_pass``: also start from a SIFT + RANSAC homography of the pair (``baselines.SiftRansac``),
+    when it finds one (for pairs where the network's hypothesis is wrong and the images' features
+    still match: on the issue-14 test split it turned one pair's 28 px into 2.4 px).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -73,6 +78,7 @@ class RefineConfig:
     contrast_sigma: float = 16.0
     plain_pass: bool = True
     identity_pass: bool = True
+    sift_pass: bool = True
     texture_floor: float = 256.0
     min_evidence: float = 0.01
     max_area_ratio: float = 6.0
@@ -94,12 +100,12 @@ class RefineConfig:
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
 # four); measured in docs/benchmarks.md ("Inference latency")
-FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False)
+FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False)
 
 
 @dataclass(frozen=True)
 class RefineInfo:
-    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "none" for a
+    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "sift", "none" for a
     textureless pair or "skipped"), ``images`` ("normalised" or "plain": the gray images the residual
     was measured on), the selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"``
     (texture-weighted mean local NCC, in [-1, 1]), the per-pixel ``confidence`` (float32 ``(H, W)``
@@ -118,6 +124,7 @@ class GeometricRefiner:
     def __init__(self, config: RefineConfig | None = None) -> None:
         self.config = config or RefineConfig()
         self._dis = cv2.DISOpticalFlow_create(cv2.DISOpticalFlow_PRESET_MEDIUM)
+        self._sift = SiftRansac() if self.config.sift_pass else None
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
         """The refined flow of one pair and which hypothesis produced it (:meth:`predict` without the
@@ -139,9 +146,10 @@ class GeometricRefiner:
             projected, captured: uint8 RGB ``(H, W, 3)`` of one size.
             flow: the network's flow for the pair, float ``(H, W, 2)`` (or, tracking, the previous
                 frame's: :mod:`projreg.track`).
-            identity: also try the identity hypothesis (tracking leaves it out while ``flow`` has a
-                homography fit; its ``hypothesis`` is then "network" unless that fit failed); the
-                config's ``identity_pass`` off leaves it out always (``FAST_REFINE``).
+            identity: also try the identity and the SIFT hypotheses (tracking leaves them out while
+                ``flow`` has a homography fit; its ``hypothesis`` is then "network" unless that fit
+                failed); the config's ``identity_pass`` / ``sift_pass`` off leave them out always
+                (``FAST_REFINE``).
 
         Returns:
             The :class:`~projreg.confidence.Prediction` (float32 ``(H, W, 2)`` forward flow, the pixels
@@ -179,6 +187,8 @@ class GeometricRefiner:
         hypotheses = {"network": (None if fit is None else fit[0], flow), "identity": (np.eye(3), np.zeros_like(flow))}
         if not (identity and cfg.identity_pass) and fit is not None:
             del hypotheses["identity"]
+        if identity and self._sift is not None:
+            hypotheses.update(self._sift_hypothesis(projected, captured, step))
         cands, scores = {}, {}
         for kind, (gray0, gray1) in images.items():
             weight = texture_weight(gray0, cfg.texture_floor if kind == "plain" else 0.0)
@@ -201,6 +211,14 @@ class GeometricRefiner:
         why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
         pred = Prediction(cands[best], claimed, not why, why)
         return pred, RefineInfo(name, kind, scores, conf, share)
+
+    def _sift_hypothesis(self, projected: np.ndarray, captured: np.ndarray, step: int) -> dict:
+        """``{"sift": (H, flow)}`` when SIFT + RANSAC finds a proper homography of the pair, else ``{}``."""
+        flow = self._sift.predict(projected, captured)
+        if self._sift.last_status != "ok":
+            return {}
+        fit = fit_homography(flow, step, self.config.ransac_px, None, self.config.max_area_ratio, self.config.min_hull)
+        return {} if fit is None else {"sift": (fit[0], flow)}
 
     def hypothesis(
         self,
