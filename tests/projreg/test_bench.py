@@ -1,5 +1,6 @@
 import hashlib
 import json
+import math
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ from typer.testing import CliRunner
 
 import projreg.bench
 from projreg import ProjregError
+from projreg.baselines import parse_baselines
 from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices, to_markdown
 from projreg.checkpoint import load_model
 from projreg.cli import app
@@ -351,3 +353,15 @@ def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path
     for name in ("dis-fast", "dis-fast+track"):
         assert rows[name]["images"] == 3 and 10 < rows[name]["comp_psnr"] < 99
     assert rows["uncompensated"]["comp_psnr"] < rows["dis-fast"]["comp_psnr"]
+
+
+def test_refine_only_is_a_baseline_row_beside_sift(tiny_train, monkeypatch):
+    """`--baselines sift-ransac,refine-only`: the refinement without the network is a baseline row
+    (never gated), with the pixels it claims; its SIFT start is the sift-ransac row's homography."""
+    monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
+    rep = run_bench(tiny_train, baselines=parse_baselines("sift-ransac,refine-only"), device=CPU)
+    rows = {r["name"]: r for r in rep["results"]}
+    assert list(rows) == ["sift-ransac", "refine-only"]
+    only = rows["refine-only"]
+    assert only["kind"] == "baseline" and not only["refined"] and math.isfinite(only["epe"])
+    assert 0.0 <= only["claimed"] <= 1.0 and len(only["pairs"]) == len(rows["sift-ransac"]["pairs"])
