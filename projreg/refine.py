@@ -18,7 +18,9 @@ images:
 3. **Smooth surface model**: the residual is fitted by a tensor-product cubic B-spline (``grid``
    control points), weighted by the projected image's texture and made robust by iteratively
    reweighted least squares (Cauchy weights), so DIS's noise in flat or washed-out regions is
-   averaged away instead of copied.
+   averaged away instead of copied. What it leaves is fitted once more by a finer P-spline
+   (``detail_grid``) when block cross-validation says that predicts held-out pixels better: a sheet
+   bent with a period shorter than the coarse knots, not DIS's noise.
 4. **Selection**: steps 1-3 run from every hypothesis, on the normalised and on the plain gray
    images (normalisation helps under blending and transparency, hurts some large, well-lit
    motions); each of the four flows is scored by the median local normalised cross-correlation
@@ -44,7 +46,7 @@ from threadpoolctl import ThreadpoolController
 
 from . import ProjregError
 from .baselines import SiftRansac, homography_flow, proper_homography, to_gray
-from .confidence import CONFIDENT, Prediction, pixel_confidence
+from .confidence import CONFIDENT, Prediction, pixel_confidence, ramp
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
 _BLAS = ThreadpoolController()
@@ -64,7 +66,10 @@ class RefineConfig:
     (for pairs where the network is lost; without it, only when the network's flow has no homography);
     ``sift_pass``: also start from a SIFT + RANSAC homography of the pair (``baselines.SiftRansac``),
     when it finds one (for pairs where the network's hypothesis is wrong and the images' features
-    still match: on the issue-14 test split it turned one pair's 28 px into 2.4 px).
+    still match: on the issue-14 test split it turned one pair's 28 px into 2.4 px); ``detail_grid``:
+    the fine P-spline added to the coarse one where cross-validation says the residual carries finer
+    surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
+    only).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -75,7 +80,7 @@ class RefineConfig:
     ridge: float = 1e-3
     irls_iterations: int = 3
     ncc_sigma: float = 7.0
-    contrast_sigma: float = 16.0
+    contrast_sigma: float = 8.0
     plain_pass: bool = True
     identity_pass: bool = True
     sift_pass: bool = True
@@ -87,6 +92,8 @@ class RefineConfig:
     support_margin: float = 0.1
     confidence_radius: float = 0.03
     rival_margin: float = 0.05
+    detail_grid: tuple[int, int] | None = (14, 11)
+    detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -100,7 +107,7 @@ class RefineConfig:
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
 # four); measured in docs/benchmarks.md ("Inference latency")
-FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False)
+FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False, detail_grid=None)
 
 
 @dataclass(frozen=True)
@@ -250,6 +257,9 @@ class GeometricRefiner:
             base = homography_flow(fit[0], h, w)
         residual = self._residual(gray0, gray1, base)  # [H, W, 2], in the projector frame
         smooth = fit_bspline(residual, weight, cfg.grid, step, cfg.robust_px, cfg.ridge, cfg.irls_iterations)
+        if cfg.detail_grid is not None:
+            detail, _ = fit_detail(residual - smooth, weight, cfg.detail_grid, cfg.detail_bends, step, cfg.robust_px)
+            smooth = smooth + detail
         return base, residual, bound_outside(compose(base, smooth), prior, support, cfg.free_px)
 
     def confidence(
@@ -442,6 +452,7 @@ def fit_bspline(
     robust: float = 1.0,
     ridge: float = 1e-3,
     iterations: int = 3,
+    bend: float = 0.0,
 ) -> np.ndarray:
     """Robust weighted least-squares cubic B-spline fit of a 2-channel field.
 
@@ -452,29 +463,126 @@ def fit_bspline(
         robust: Cauchy scale (field units) of the reweighting after the first solve.
         ridge: Tikhonov weight towards zero on the control values.
         iterations: weighted solves (the first unweighted by residuals).
+        bend: weight of a second-difference penalty on the control values (a P-spline): bridges
+            regions without data smoothly instead of pulling them to zero.
 
     Returns:
         float32 ``(H, W, 2)``, the spline evaluated at every pixel.
     """
-    h, w = field.shape[:2]
-    kx, ky = grid
-    By, Bx = bspline_basis(h, ky), bspline_basis(w, kx)  # [H, ky], [W, kx]
-    A = np.einsum("yi,xj->yxij", By[::step], Bx[::step]).reshape(-1, ky * kx)  # [N, K]
-    f = field[::step, ::step].reshape(-1, 2).astype(np.float64)  # [N, 2]
-    w0 = weight[::step, ::step].reshape(-1).astype(np.float64)  # [N]
-    ok = np.isfinite(f).all(axis=1)
-    f, w0 = np.where(ok[:, None], f, 0.0), np.where(ok, w0, 0.0)
-    fit = np.zeros_like(f)
-    # one BLAS thread: these products are small, and a second thread contending with torch's OpenMP
-    # workers (or another process) made this fit take 1.5-4 s instead of 50 ms on the 2-core VM
-    with _BLAS.limit(limits=1, user_api="blas"):
+    design = SplineDesign(field.shape[0], field.shape[1], grid, step)
+    f, w0 = design.samples(field, weight)
+    with one_blas_thread():
+        return design.evaluate(design.solve(f, w0, robust, ridge, iterations, bend))
+
+
+def one_blas_thread():
+    """A context with one BLAS thread: the spline's products are small, and a second thread contending
+    with torch's OpenMP workers (or another process) made one fit take 1.5-4 s instead of 50 ms on the
+    2-core VM."""
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
+class SplineDesign:
+    """A cubic B-spline on one frame size and grid, sampled every ``step`` px, and its weighted robust solve.
+
+    The basis is a tensor product, so the normal equations are built separably (one pass over the
+    sample rows per basis pair) instead of from the dense ``(N, K)`` design matrix: a few milliseconds
+    for a 14 x 11 grid on 12,000 samples.
+    """
+
+    def __init__(self, h: int, w: int, grid: tuple[int, int], step: int) -> None:
+        kx, ky = grid
+        self.grid, self.step = grid, step
+        self.By, self.Bx = bspline_basis(h, ky), bspline_basis(w, kx)  # [H, ky], [W, kx]
+        self.by, self.bx = self.By[::step], self.Bx[::step]  # [h', ky], [w', kx]: at the samples
+        self.byy = (self.by[:, :, None] * self.by[:, None, :]).reshape(len(self.by), ky * ky)  # [h', ky ky]
+        self.bxx = (self.bx[:, :, None] * self.bx[:, None, :]).reshape(len(self.bx), kx * kx)  # [w', kx kx]
+        dy = np.diff(np.eye(ky), 2, axis=0)  # second differences along y and along x of the control grid
+        dx = np.diff(np.eye(kx), 2, axis=0)
+        D = np.concatenate([np.kron(dy, np.eye(kx)), np.kron(np.eye(ky), dx)])  # [M, K]
+        self.penalty = D.T @ D  # [K, K]
+
+    def samples(self, field: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The field's ``(h', w', 2)`` samples (non-finite ones at weight 0) and their ``(h', w')`` weights."""
+        st = self.step
+        f = field[::st, ::st].astype(np.float64)
+        w0 = weight[::st, ::st].astype(np.float64)
+        ok = np.isfinite(f).all(axis=-1)
+        return np.where(ok[..., None], f, 0.0), np.where(ok, w0, 0.0)
+
+    def at_samples(self, c: np.ndarray) -> np.ndarray:
+        """The spline of control values ``c`` ``(ky, kx, 2)`` at the samples, ``(h', w', 2)``."""
+        return np.stack([self.by @ c[..., i] @ self.bx.T for i in range(2)], axis=-1)
+
+    def solve(
+        self, f: np.ndarray, w0: np.ndarray, robust: float, ridge: float, iterations: int, bend: float = 0.0
+    ) -> np.ndarray:
+        """Control values ``(ky, kx, 2)``: iteratively reweighted (Cauchy) least squares with ridge and
+        bend penalties."""
+        kx, ky = self.grid
+        reg = ridge * np.eye(kx * ky) + bend * self.penalty
+        fit = np.zeros_like(f)
         for it in range(iterations):
-            wi = w0 if it == 0 else w0 / (1 + (np.linalg.norm(f - fit, axis=1) / robust) ** 2)
-            lhs = A.T @ (A * wi[:, None]) + ridge * np.eye(A.shape[1])  # [K, K]
-            c = np.linalg.solve(lhs, A.T @ (f * wi[:, None]))  # [K, 2]
-            fit = A @ c
-    c = c.reshape(ky, kx, 2)
-    return np.stack([By @ c[..., i] @ Bx.T for i in range(2)], axis=-1).astype(np.float32)
+            wi = w0 if it == 0 else w0 / (1 + (np.linalg.norm(f - fit, axis=-1) / robust) ** 2)  # [h', w']
+            normal = (self.byy.T @ (wi @ self.bxx)).reshape(ky, ky, kx, kx)  # [i, k, j, l]
+            normal = normal.transpose(0, 2, 1, 3).reshape(kx * ky, kx * ky)  # rows (i, j), columns (k, l)
+            rhs = np.stack([self.by.T @ (f[..., i] * wi) @ self.bx for i in range(2)], axis=-1)  # [ky, kx, 2]
+            c = np.linalg.solve(normal + reg, rhs.reshape(kx * ky, 2)).reshape(ky, kx, 2)
+            fit = self.at_samples(c)
+        return c
+
+    def evaluate(self, c: np.ndarray) -> np.ndarray:
+        """The spline of control values ``c`` at every pixel, float32 ``(H, W, 2)``."""
+        return np.stack([self.By @ c[..., i] @ self.Bx.T for i in range(2)], axis=-1).astype(np.float32)
+
+
+def fit_detail(
+    remainder: np.ndarray,
+    weight: np.ndarray,
+    grid: tuple[int, int],
+    bends: tuple[float, ...],
+    step: int,
+    robust: float,
+    block: int = 32,
+    gain: float = 0.05,
+) -> tuple[np.ndarray, float | None]:
+    """Surface detail finer than the coarse spline (a short-period bend), only where the data carry it.
+
+    ``remainder`` (what the coarse spline left of the DIS residual) is fitted by a P-spline on the
+    fine ``grid`` at each penalty weight in ``bends``; two-fold cross-validation on a checkerboard of
+    ``block`` px blocks (fit on one colour, score the other: DIS's errors are correlated over its
+    patches, so neighbouring pixels cannot vouch for each other) scores each against leaving the
+    remainder alone. The winner must lower the held-out robust loss (texture-weighted Cauchy) by
+    ``gain``; otherwise no detail is added. The detail fades out where ``weight`` has no data within
+    about half a knot spacing (a P-spline extrapolates its slopes; beyond the data that is a guess).
+
+    Returns:
+        ``(detail, bend)``: float32 ``(H, W, 2)`` (zeros when nothing wins) and the chosen penalty
+        (None: none).
+    """
+    h, w = remainder.shape[:2]
+    design = SplineDesign(h, w, grid, step)
+    f, w0 = design.samples(remainder, weight)
+    y, x = np.mgrid[0:h:step, 0:w:step]
+    colour = ((y // block) + (x // block)) % 2 > 0  # [h', w']
+
+    def held_out(pred: np.ndarray, mask: np.ndarray) -> float:
+        e = np.linalg.norm(f - pred, axis=-1)
+        return float((w0 * mask * np.log1p((e / robust) ** 2)).sum())
+
+    with one_blas_thread():
+        losses = {None: held_out(0 * f, colour) + held_out(0 * f, ~colour)}
+        for bend in bends:
+            fits = [design.at_samples(design.solve(f, w0 * ~m, robust, 1e-3, 3, bend)) for m in (colour, ~colour)]
+            losses[bend] = held_out(fits[0], colour) + held_out(fits[1], ~colour)
+        best = min(losses, key=losses.get)
+        if best is None or losses[best] > (1 - gain) * losses[None]:
+            return np.zeros_like(remainder, dtype=np.float32), None
+    sigma = 0.5 * max(h / (grid[1] - 3), w / (grid[0] - 3))  # half a knot spacing, px
+    near_data = ramp(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma), 0.05, 0.3)
+    with one_blas_thread():
+        detail = design.evaluate(design.solve(f, w0, robust, 1e-3, 3, best))
+    return detail * near_data[..., None], best
 
 
 def local_ncc(gray0: np.ndarray, gray1: np.ndarray, sigma: float = 7.0) -> np.ndarray:

@@ -9,12 +9,14 @@ from projreg.baselines import homography_flow
 from projreg.refine import (
     GeometricRefiner,
     RefineConfig,
+    SplineDesign,
     alignment_score,
     area_ratio,
     bound_outside,
     bspline_basis,
     compose,
     fit_bspline,
+    fit_detail,
     fit_homography,
     near,
     normalize_contrast,
@@ -82,6 +84,37 @@ def test_bspline_fit_ignores_outliers_and_zero_weight_pixels():
     assert np.abs(fit - field).max() < 0.1, np.abs(fit - field).max()
 
 
+def test_separable_normal_equations_match_the_dense_design_matrix():
+    h, w, step, grid = 50, 70, 3, (7, 5)
+    rng = np.random.default_rng(3)
+    field, weight = rng.normal(0, 1, (h, w, 2)), rng.random((h, w))
+    design = SplineDesign(h, w, grid, step)
+    f, w0 = design.samples(field, weight)
+    A = np.einsum("yi,xj->yxij", design.by, design.bx).reshape(-1, grid[0] * grid[1])  # [N, K], dense
+    reg = 0.1 * np.eye(A.shape[1]) + 2.0 * design.penalty
+    dense = np.linalg.solve(A.T @ (A * w0.reshape(-1, 1)) + reg, A.T @ (f.reshape(-1, 2) * w0.reshape(-1, 1)))
+    c = design.solve(f, w0, robust=1.0, ridge=0.1, iterations=1, bend=2.0)
+    np.testing.assert_allclose(c.reshape(-1, 2), dense, atol=1e-9)
+    np.testing.assert_allclose(design.at_samples(c).reshape(-1, 2), A @ dense, atol=1e-9)
+
+
+def test_fit_detail_adds_a_short_bend_and_leaves_noise_alone():
+    h, w = 192, 256
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    rng = np.random.default_rng(4)
+    wave = np.stack([3 * np.sin(2 * np.pi * y / 90), 2 * np.sin(2 * np.pi * x / 110)], axis=-1)  # too short for 6 x 5
+    noise = rng.normal(0, 1.0, (h, w, 2)).astype(np.float32)
+    weight = np.ones((h, w), np.float32)
+    weight[:, 180:] = 0  # no data on the right: the detail must stay bounded there (ridge + bend)
+    detail, bend = fit_detail(wave + noise, weight, (14, 11), (0.3, 3.0, 30.0), 2, 1.0)
+    assert bend is not None
+    err = np.linalg.norm(detail - wave, axis=-1)
+    assert err[:, 20:160].mean() < 0.4, err[:, 20:160].mean()  # the wave, to a fraction of the noise
+    assert np.linalg.norm(detail, axis=-1)[:, 220:].max() < 4.0
+    nothing, bend = fit_detail(noise, weight, (14, 11), (0.3, 3.0, 30.0), 2, 1.0)
+    assert bend is None and not nothing.any()  # pure noise: cross-validation keeps the coarse fit
+
+
 def test_fit_homography_recovers_h_through_outliers():
     h, w = 120, 160
     flow = homography_flow(H_TRUE, h, w)
@@ -104,7 +137,7 @@ def test_fit_homography_refuses_flows_through_infinity():
     H = np.array([[1, 0, 0], [0, 1, 0], [-0.05, 0, 1.0]])  # the line x = 20 goes to infinity
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
     q = np.stack([x, y, np.ones_like(x)], -1) @ H.T
-    flow = (q[..., :2] / np.where(np.abs(q[..., 2:]) < 1e-6, 1e-6, q[..., 2:]) - np.stack([x, y], -1))
+    flow = q[..., :2] / np.where(np.abs(q[..., 2:]) < 1e-6, 1e-6, q[..., 2:]) - np.stack([x, y], -1)
     assert fit_homography(flow.astype(np.float32), 1, 0.5) is None
 
 
@@ -327,6 +360,17 @@ def test_an_almost_blank_picture_is_reported_not_registered(picture):
     assert not pred.claimed.any()
     np.testing.assert_array_equal(pred.flow, 0)  # the projection is left where it is
     assert np.linalg.norm(pred.flow - gt, axis=-1)[valid].mean() < np.linalg.norm(net - gt, axis=-1)[valid].mean()
+
+
+def test_a_short_period_bend_is_followed_by_the_detail_level(picture):
+    """A sheet bent with a 140 px period (3 knot intervals of the 6 x 5 spline per 256 px cannot follow it)."""
+    img0, img1, gt, valid = _bent_pair(picture, amp=4.0, period=140.0, seed=3)
+    net = _network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(11))
+    errs = {}
+    for name, cfg in (("detail", RefineConfig()), ("coarse", RefineConfig(detail_grid=None))):
+        pred = GeometricRefiner(cfg).predict(img0, img1, net)
+        errs[name] = np.linalg.norm(pred.flow - gt, axis=-1)[valid].mean()
+    assert errs["detail"] < 0.75 * errs["coarse"] and errs["detail"] < 0.5, errs
 
 
 def test_a_fully_textured_bent_pair_is_claimed_almost_everywhere(picture):
