@@ -69,7 +69,8 @@ class RefineConfig:
     still match: on the issue-14 test split it turned one pair's 28 px into 2.4 px); ``detail_grid``:
     the fine P-spline added to the coarse one where cross-validation says the residual carries finer
     surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
-    only).
+    only); ``periodic_peak``: pixels where the projected image repeats itself (:func:`periodicity` at
+    least this) are not claimed, whatever the checks say (1: no test).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -93,6 +94,7 @@ class RefineConfig:
     confidence_radius: float = 0.03
     rival_margin: float = 0.05
     detail_grid: tuple[int, int] | None = (14, 11)
+    periodic_peak: float = 0.85
     detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
 
     def __post_init__(self) -> None:
@@ -107,7 +109,7 @@ class RefineConfig:
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
 # four); measured in docs/benchmarks.md ("Inference latency")
-FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False, detail_grid=None)
+FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False, detail_grid=None, periodic_peak=1.0)
 
 
 @dataclass(frozen=True)
@@ -284,7 +286,10 @@ class GeometricRefiner:
         for other in rivals:
             spread = np.maximum(spread, np.linalg.norm(other - flow, axis=-1))
         ncc = local_ncc(gray0, warped, cfg.ncc_sigma)
-        return pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
+        conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
+        if cfg.periodic_peak < 1:  # a repeating pattern: a flow off by one period passes every check
+            conf = np.where(periodicity(gray0) >= cfg.periodic_peak, 0.0, conf)
+        return conf
 
     def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray) -> np.ndarray:
         """DIS flow from the projected image to the captured image warped back by ``base``."""
@@ -583,6 +588,63 @@ def fit_detail(
     with one_blas_thread():
         detail = design.evaluate(design.solve(f, w0, robust, 1e-3, 3, best))
     return detail * near_data[..., None], best
+
+
+def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
+    """Per pixel, how well the image repeats itself around it, float32 ``(H, W)`` in [0, 1]: near 1 on a
+    grating, a checkerboard or a tiled motif, whose match one period away is as good as the true
+    one; low on an edge or a ramp, which stay similar under every move along them (the aperture
+    problem, which the smooth surface model resolves from their neighbours).
+
+    Each ``tile`` x ``tile`` window (half-overlapping, Hann-weighted) gives its autocorrelation (FFT,
+    zero-padded, divided by the window's own so a shift is not penalised for the smaller overlap);
+    the score is its highest value outside the central lobe (the connected region >= 0.3 around zero
+    shift, which holds an edge's ridge), within half a tile; the tiles' scores are interpolated over
+    the frame.
+
+    Example:
+        >>> x = np.arange(128, dtype=np.float32)
+        >>> grating = np.tile(128 + 100 * np.sin(2 * np.pi * x / 7), (96, 1)).astype(np.uint8)
+        >>> bool(periodicity(grating)[48, 64] > 0.8)
+        True
+        >>> edge = np.tile(np.where(x < 64, 40, 200), (96, 1)).astype(np.uint8)
+        >>> bool(periodicity(edge)[48, 64] < 0.3)
+        True
+    """
+    h, w = gray.shape
+    g = gray.astype(np.float32)
+    if min(h, w) < tile:
+        return np.zeros((h, w), np.float32)
+    starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile // 2), n - tile]) for n in (h, w)]
+    hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
+    tiles = np.stack([g[y : y + tile, x : x + tile] for y in starts[0] for x in starts[1]])  # [T, tile, tile]
+    tiles = (tiles - tiles.mean(axis=(1, 2), keepdims=True)) * hann
+
+    def autocorrelation(a: np.ndarray) -> np.ndarray:  # [..., 2 tile, 2 tile], zero shift at the centre
+        power = np.abs(np.fft.rfft2(a, s=(2 * tile, 2 * tile))) ** 2
+        return np.fft.fftshift(np.fft.irfft2(power, s=(2 * tile, 2 * tile)), axes=(-2, -1))
+
+    c = tile  # the zero shift after fftshift
+    span = slice(c - tile // 2, c + tile // 2 + 1)
+    window = autocorrelation(hann)[span, span]
+    ac = autocorrelation(tiles)[:, span, span] / np.maximum(window, 1e-6)  # [T, tile + 1, tile + 1]
+    ac = ac / np.maximum(ac[:, tile // 2, tile // 2 : tile // 2 + 1, None], 1e-6)
+    ac[:, window < 0.25 * window.max()] = 0.0
+    scores = np.zeros(len(tiles), np.float32)
+    for i, a in enumerate(ac):
+        if not np.isfinite(a).all() or tiles[i].std() < 1e-3:
+            continue
+        _, labels = cv2.connectedComponents((a >= 0.3).astype(np.uint8), connectivity=8)
+        outside = labels != labels[tile // 2, tile // 2]
+        scores[i] = float(np.clip(a[outside].max(initial=0.0), 0.0, 1.0))
+    grid = scores.reshape(len(starts[0]), len(starts[1]))
+    centres = [s + tile / 2 for s in starts]  # tile centres, px
+    x, y = (
+        np.interp(np.arange(w), centres[1], np.arange(len(centres[1]))),
+        np.interp(np.arange(h), centres[0], np.arange(len(centres[0]))),
+    )
+    mx, my = np.meshgrid(x.astype(np.float32), y.astype(np.float32))
+    return cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def local_ncc(gray0: np.ndarray, gray1: np.ndarray, sigma: float = 7.0) -> np.ndarray:
