@@ -248,7 +248,8 @@ class GeometricRefiner:
 
         Returns:
             ``(base, residual, flow)``, float32 ``(H, W, 2)`` each: the refitted homography's flow, the
-            DIS residual measured on it, and the refined flow ``compose(base, spline(residual))``.
+            DIS residual measured on it, and the refined flow ``compose(base, spline(residual))``
+            (:meth:`surface`).
         """
         cfg = self.config
         h, w = gray0.shape
@@ -258,11 +259,29 @@ class GeometricRefiner:
         if fit is not None:
             base = homography_flow(fit[0], h, w)
         residual = self._residual(gray0, gray1, base)  # [H, W, 2], in the projector frame
+        return base, residual, self.surface(base, residual, weight, step, support, prior)
+
+    def surface(
+        self,
+        base: np.ndarray,
+        residual: np.ndarray,
+        weight: np.ndarray,
+        step: int,
+        support: np.ndarray,
+        prior: np.ndarray,
+        detail: bool = True,
+    ) -> np.ndarray:
+        """Step 3: ``base`` composed with the coarse spline of ``residual`` (and, with ``detail`` and a
+        ``detail_grid``, the cross-validated fine level, :func:`fit_detail`), held within ``free_px`` of
+        ``prior`` outside ``support``."""
+        cfg = self.config
         smooth = fit_bspline(residual, weight, cfg.grid, step, cfg.robust_px, cfg.ridge, cfg.irls_iterations)
-        if cfg.detail_grid is not None:
-            detail, _ = fit_detail(residual - smooth, weight, cfg.detail_grid, cfg.detail_bends, step, cfg.robust_px)
-            smooth = smooth + detail
-        return base, residual, bound_outside(compose(base, smooth), prior, support, cfg.free_px)
+        if detail and cfg.detail_grid is not None:
+            smooth = (
+                smooth
+                + fit_detail(residual - smooth, weight, cfg.detail_grid, cfg.detail_bends, step, cfg.robust_px)[0]
+            )
+        return bound_outside(compose(base, smooth), prior, support, cfg.free_px)
 
     def confidence(
         self,
@@ -474,7 +493,7 @@ def fit_bspline(
     Returns:
         float32 ``(H, W, 2)``, the spline evaluated at every pixel.
     """
-    design = SplineDesign(field.shape[0], field.shape[1], grid, step)
+    design = spline_design(field.shape[0], field.shape[1], tuple(grid), step)
     f, w0 = design.samples(field, weight)
     with one_blas_thread():
         return design.evaluate(design.solve(f, w0, robust, ridge, iterations, bend))
@@ -485,6 +504,12 @@ def one_blas_thread():
     with torch's OpenMP workers (or another process) made one fit take 1.5-4 s instead of 50 ms on the
     2-core VM."""
     return _BLAS.limit(limits=1, user_api="blas")
+
+
+@lru_cache(maxsize=8)
+def spline_design(h: int, w: int, grid: tuple[int, int], step: int) -> SplineDesign:
+    """The :class:`SplineDesign` of one frame size, grid and step, built once (its arrays are not written)."""
+    return SplineDesign(h, w, grid, step)
 
 
 class SplineDesign:
@@ -566,7 +591,7 @@ def fit_detail(
         (None: none).
     """
     h, w = remainder.shape[:2]
-    design = SplineDesign(h, w, grid, step)
+    design = spline_design(h, w, tuple(grid), step)
     f, w0 = design.samples(remainder, weight)
     y, x = np.mgrid[0:h:step, 0:w:step]
     colour = ((y // block) + (x // block)) % 2 > 0  # [h', w']
@@ -596,7 +621,7 @@ def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
     one; low on an edge or a ramp, which stay similar under every move along them (the aperture
     problem, which the smooth surface model resolves from their neighbours).
 
-    Each ``tile`` x ``tile`` window (half-overlapping, Hann-weighted) gives its autocorrelation (FFT,
+    Each ``tile`` x ``tile`` window (side by side, Hann-weighted) gives its autocorrelation (FFT,
     zero-padded, divided by the window's own so a shift is not penalised for the smaller overlap);
     the score is its highest value outside the central lobe (the connected region >= 0.3 around zero
     shift, which holds an edge's ridge), within half a tile; the tiles' scores are interpolated over
@@ -615,7 +640,7 @@ def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
     g = gray.astype(np.float32)
     if min(h, w) < tile:
         return np.zeros((h, w), np.float32)
-    starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile // 2), n - tile]) for n in (h, w)]
+    starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile), n - tile]) for n in (h, w)]
     hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
     tiles = np.stack([g[y : y + tile, x : x + tile] for y in starts[0] for x in starts[1]])  # [T, tile, tile]
     tiles = (tiles - tiles.mean(axis=(1, 2), keepdims=True)) * hann

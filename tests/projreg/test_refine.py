@@ -370,7 +370,7 @@ def test_a_short_period_bend_is_followed_by_the_detail_level(picture):
     for name, cfg in (("detail", RefineConfig()), ("coarse", RefineConfig(detail_grid=None))):
         pred = GeometricRefiner(cfg).predict(img0, img1, net)
         errs[name] = np.linalg.norm(pred.flow - gt, axis=-1)[valid].mean()
-    assert errs["detail"] < 0.75 * errs["coarse"] and errs["detail"] < 0.5, errs
+    assert errs["detail"] < 0.75 * errs["coarse"] and errs["detail"] < 0.45, errs
 
 
 def test_a_fully_textured_bent_pair_is_claimed_almost_everywhere(picture):
