@@ -3,6 +3,7 @@
 Usage:
     python bench/bench_infer.py latency [--onnx build/onnx/reference.onnx] [--repeats 3] [--sizes 384x512,768x1024]
     python bench/bench_infer.py fast --data build/fresh-test [--onnx build/onnx/reference.onnx] [--limit 64]
+    python bench/bench_infer.py graphs A.onnx B.onnx ... [--size 384x512] [--batch 1] [--rounds 7]
 
 ``latency``: ms per pair of the network alone on random images, for ``small`` (the shipped reference
 weights) and ``base`` (random initialisation: the same operations, so the same time), PyTorch fp32 and
@@ -12,6 +13,10 @@ and 8 (8 at the smaller size only: the global softmaxes hold (H W / 64)^2 floats
 
 ``fast``: each inference option on the samples of a dataset: EPE (pooled over valid pixels, px) and
 median ms per pair, network and refinement timed apart.
+
+``graphs``: ONNX graphs of one network (e.g. exported before and after a change) in onnxruntime,
+interleaved A, B, A, B on one random pair so that a shared machine's load falls on all alike: median
+wall-clock and process-CPU ms per pair, and each graph's flow against the first one's.
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ from projreg.evaluate import sample_indices
 from projreg.infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
 from projreg.metrics import EPEAccumulator
 from projreg.model.net import build_model
-from projreg.refine import FAST_REFINE, GeometricRefiner
+from projreg.refine import FAST_REFINE, GeometricRefiner, RefineConfig
 from projsynth.dataset import parse_size
 from projsynth.shards import ShardReader
 
@@ -94,14 +99,24 @@ def fast(args: argparse.Namespace) -> None:
         nets["onnxruntime"] = OnnxNetwork(args.onnx, CPU)
     # (label, backend, network max side, refinement config or None)
     fast = f"network at {FAST_MAX_SIDE} px"
-    options = [("network alone", "torch", 1024, None), ("network alone", "onnxruntime", 1024, None),
-               ("network + refinement (default)", "torch", 1024, "full"),
-               ("network + one-candidate refinement", "torch", 1024, "fast"),
-               (f"{fast} alone", "onnxruntime", FAST_MAX_SIDE, None),
-               (f"{fast} + one-candidate refinement (--fast)", "torch", FAST_MAX_SIDE, "fast"),
-               (f"{fast} + one-candidate refinement (--fast)", "onnxruntime", FAST_MAX_SIDE, "fast")]  # fmt: skip
+    options = [
+        ("network alone", "torch", 1024, None),
+        ("network alone", "onnxruntime", 1024, None),
+        ("network + refinement (default)", "torch", 1024, "full"),
+        ("network + one-candidate refinement", "torch", 1024, "one"),
+        (f"{fast} alone", "onnxruntime", FAST_MAX_SIDE, None),
+        (f"{fast} + one-candidate refinement at {FAST_REFINE.max_side} px (--fast)", "torch", FAST_MAX_SIDE, "fast"),
+        (
+            f"{fast} + one-candidate refinement at {FAST_REFINE.max_side} px (--fast)",
+            "onnxruntime",
+            FAST_MAX_SIDE,
+            "fast",
+        ),
+    ]
     options = [o for o in options if o[1] in nets]
-    refiners = {"full": GeometricRefiner(), "fast": GeometricRefiner(FAST_REFINE)}
+    # "one": the fast path's one candidate at the pair's own size (``FAST_REFINE`` before session 9)
+    one = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False)
+    refiners = {"full": GeometricRefiner(), "one": GeometricRefiner(one), "fast": GeometricRefiner(FAST_REFINE)}
     indices = sample_indices(len(reader), args.limit)
     samples = [reader.read(k) for k in indices]
     print(f"# {args.data}: {len(samples)} samples; {_machine()}")
@@ -130,6 +145,36 @@ def fast(args: argparse.Namespace) -> None:
     print(f"# {_machine()}")
 
 
+def graphs(args: argparse.Namespace) -> None:
+    import onnxruntime as ort
+
+    def session(path: Path):
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = torch.get_num_threads()
+        options.log_severity_level = 3
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+    sessions = [session(p) for p in args.onnx]
+    h, w = parse_size(args.size)
+    img = np.random.default_rng(0).integers(0, 256, (args.batch, 3, h, w)).astype(np.float32)
+    feed = {"projected": img, "captured": img[:, :, ::-1, ::-1].copy()}
+    flows = [s.run(None, feed)[0] for s in sessions]  # and the warm-up
+    wall, cpu = [[] for _ in sessions], [[] for _ in sessions]
+    print(f"# {h} x {w}, batch {args.batch}; {_machine()}")
+    for _ in range(args.rounds):
+        for i, s in enumerate(sessions):
+            t0, c0 = time.perf_counter(), time.process_time()
+            s.run(None, feed)
+            wall[i].append(1000 * (time.perf_counter() - t0) / args.batch)
+            cpu[i].append(1000 * (time.process_time() - c0) / args.batch)
+    print("| graph | ms per pair (wall) | CPU ms per pair | flow vs the first: mean / max px |\n|---|---|---|---|")
+    for path, flow, wl, cl in zip(args.onnx, flows, wall, cpu, strict=True):
+        diff = np.abs(flow - flows[0])
+        ms = f"{statistics.median(wl):.0f} | {statistics.median(cl):.0f}"
+        print(f"| {path} | {ms} | {diff.mean():.1e} / {diff.max():.1e} |")
+    print(f"# {_machine()}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="what", required=True)
@@ -141,8 +186,13 @@ def main() -> None:
     fst.add_argument("--data", type=Path, required=True)
     fst.add_argument("--onnx", type=Path)
     fst.add_argument("--limit", type=int)
+    grp = sub.add_parser("graphs")
+    grp.add_argument("onnx", type=Path, nargs="+")
+    grp.add_argument("--size", default="384x512")
+    grp.add_argument("--batch", type=int, default=1)
+    grp.add_argument("--rounds", type=int, default=7)
     args = ap.parse_args()
-    latency(args) if args.what == "latency" else fast(args)
+    {"latency": latency, "fast": fast, "graphs": graphs}[args.what](args)
 
 
 if __name__ == "__main__":
