@@ -214,7 +214,7 @@ def export(
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
 PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
 BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
-FAST_HELP = "Fast path: the network at <= 192 px, the refinement from its hypothesis only, at <= 256 px."
+FAST_HELP = "Fast path: the network, then the refinement from its hypothesis only, both at <= 256 px."
 
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."

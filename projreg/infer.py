@@ -33,7 +33,7 @@ Network = Callable[[np.ndarray, np.ndarray], np.ndarray]
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 BACKENDS = ("torch", "onnxruntime")
 EXTRA = "pip install 'projsynth[onnx]'"
-FAST_MAX_SIDE = 192  # ``--fast``: the network sees at most 144 x 192 of a 384 x 512 pair (docs/benchmarks.md)
+FAST_MAX_SIDE = 256  # ``--fast``: the network sees at most 192 x 256 of a 384 x 512 pair (docs/benchmarks.md)
 
 
 def default_device() -> torch.device:

@@ -95,7 +95,7 @@ def test_the_fast_path_is_the_small_network_then_one_refinement_candidate(tiny_c
     assert method.name == "tiny-fast"
     pred = method.predict(big0, big1)
     net = TorchNetwork(load_model(tiny_ckpt, CPU), CPU)
-    flow = flows_resized(net, [(big0, big1)], FAST_MAX_SIDE)[0]  # the network at 128 x 192
+    flow = flows_resized(net, [(big0, big1)], FAST_MAX_SIDE)[0]  # the network at 170 x 256
     expected, info = GeometricRefiner(FAST_REFINE).predict_info(big0, big1, flow)
     np.testing.assert_allclose(pred.flow, expected.flow, atol=1e-4)
     assert set(info.scores) <= {"network/normalised", "identity/normalised"} and len(info.scores) == 1
