@@ -12,6 +12,9 @@ resized image's pixel ``c'`` is the captured image's ``c = (c' + 0.5) / s - 0.5`
 Ground truth goes the other way for training (:func:`truth_to_projected_frame`). Flows are always
 on the projected grid; only their values are in captured pixels.
 
+A whole pair is shrunk the same way for a faster run (:func:`shrink`: the network's ``--max-side``,
+the fast path's refinement) and the flow resized back onto the pair's grid (:func:`resize_flow`).
+
 Example:
     >>> import numpy as np
     >>> f = flow_to_captured(np.zeros((2, 2, 2), np.float32), (0.5, 0.5))
