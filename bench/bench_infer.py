@@ -3,6 +3,8 @@
 Usage:
     python bench/bench_infer.py latency [--onnx build/onnx/reference.onnx] [--repeats 3] [--sizes 384x512,768x1024]
     python bench/bench_infer.py fast --data build/fresh-test [--onnx build/onnx/reference.onnx] [--limit 64]
+        [--runtimes torch,onnxruntime]
+    python bench/bench_infer.py graphs A.onnx B.onnx ... [--size 384x512] [--batch 1] [--rounds 7]
 
 ``latency``: ms per pair of the network alone on random images, for ``small`` (the shipped reference
 weights) and ``base`` (random initialisation: the same operations, so the same time), PyTorch fp32 and
@@ -12,6 +14,10 @@ and 8 (8 at the smaller size only: the global softmaxes hold (H W / 64)^2 floats
 
 ``fast``: each inference option on the samples of a dataset: EPE (pooled over valid pixels, px) and
 median ms per pair, network and refinement timed apart.
+
+``graphs``: ONNX graphs of one network (e.g. exported before and after a change) in onnxruntime,
+interleaved A, B, A, B on one random pair so that a shared machine's load falls on all alike: median
+wall-clock and process-CPU ms per pair, and each graph's flow against the first one's.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ from projreg.evaluate import sample_indices
 from projreg.infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
 from projreg.metrics import EPEAccumulator
 from projreg.model.net import build_model
-from projreg.refine import FAST_REFINE, GeometricRefiner
+from projreg.refine import FAST_REFINE, GeometricRefiner, RefineConfig
 from projsynth.dataset import parse_size
 from projsynth.shards import ShardReader
 
@@ -89,44 +95,83 @@ def latency(args: argparse.Namespace) -> None:
 
 def fast(args: argparse.Namespace) -> None:
     reader = ShardReader(args.data)
-    nets = {"torch": TorchNetwork(load_model(reference_checkpoint(), CPU), CPU)}
-    if args.onnx:
+    runtimes = args.runtimes.split(",")
+    nets = {"torch": TorchNetwork(load_model(reference_checkpoint(), CPU), CPU)} if "torch" in runtimes else {}
+    if args.onnx and "onnxruntime" in runtimes:
         nets["onnxruntime"] = OnnxNetwork(args.onnx, CPU)
-    # (label, backend, network max side, refinement config or None)
-    fast = f"network at {FAST_MAX_SIDE} px"
-    options = [("network alone", "torch", 1024, None), ("network alone", "onnxruntime", 1024, None),
-               ("network + refinement (default)", "torch", 1024, "full"),
-               ("network + one-candidate refinement", "torch", 1024, "fast"),
-               (f"{fast} alone", "onnxruntime", FAST_MAX_SIDE, None),
-               (f"{fast} + one-candidate refinement (--fast)", "torch", FAST_MAX_SIDE, "fast"),
-               (f"{fast} + one-candidate refinement (--fast)", "onnxruntime", FAST_MAX_SIDE, "fast")]  # fmt: skip
+    # (label, backend, network max side, refinement or None); "one": the one candidate at the pair's
+    # own size, the fast path's refinement before session 9 (with the network at 256 px then)
+    one = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False)
+    refiners = {"full": GeometricRefiner(), "one": GeometricRefiner(one), "fast": GeometricRefiner(FAST_REFINE)}
+    fast = f"network at {FAST_MAX_SIDE} px + one-candidate refinement at {FAST_REFINE.max_side} px (--fast)"
+    options = [
+        ("network alone", "torch", 1024, None),
+        ("network alone", "onnxruntime", 1024, None),
+        ("network + refinement (default)", "onnxruntime", 1024, "full"),
+        ("network + one-candidate refinement", "onnxruntime", 1024, "one"),
+        ("network at 256 px + one-candidate refinement (--fast before session 9)", "onnxruntime", 256, "one"),
+        (f"network at {FAST_MAX_SIDE} px alone", "onnxruntime", FAST_MAX_SIDE, None),
+        (fast, "torch", FAST_MAX_SIDE, "fast"),
+        (fast, "onnxruntime", FAST_MAX_SIDE, "fast"),
+    ]
     options = [o for o in options if o[1] in nets]
-    refiners = {"full": GeometricRefiner(), "fast": GeometricRefiner(FAST_REFINE)}
     indices = sample_indices(len(reader), args.limit)
     samples = [reader.read(k) for k in indices]
-    print(f"# {args.data}: {len(samples)} samples; {_machine()}")
-    print("| option | runtime | EPE | s0-10 | s10-40 | s40+ | network ms | refinement ms | total ms | total CPU ms |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for label, backend, side, ref in options:
-        acc, t_net, t_ref, t_cpu = EPEAccumulator(), [], [], []
-        flows_resized(nets[backend], [(samples[0]["projected"], samples[0]["captured"])], side)  # warm-up
-        for s in samples:
+    reader.close()
+    acc = [EPEAccumulator() for _ in options]
+    t_net, t_ref, t_cpu = ([[] for _ in options] for _ in range(3))
+    for _, backend, side, _ in options:  # warm-up
+        flows_resized(nets[backend], [(samples[0]["projected"], samples[0]["captured"])], side)
+    print(f"# {args.data}: {len(samples)} samples, options interleaved per sample; {_machine()}")
+    for s in samples:
+        for i, (_, backend, side, ref) in enumerate(options):
             t0, c0 = time.perf_counter(), time.process_time()
             flow = flows_resized(nets[backend], [(s["projected"], s["captured"])], side)[0]
             t1 = time.perf_counter()
             if ref is not None:
                 flow = refiners[ref].predict(s["projected"], s["captured"], flow).flow
             t2 = time.perf_counter()
-            t_net.append(1000 * (t1 - t0))
-            t_ref.append(1000 * (t2 - t1))
-            t_cpu.append(1000 * (time.process_time() - c0))
-            acc.add(flow, s["flow"], s["valid"])
-        r = acc.result()
-        net_ms, ref_ms = statistics.median(t_net), statistics.median(t_ref)
-        total, cpu = statistics.median(np.add(t_net, t_ref)), statistics.median(t_cpu)
-        print(f"| {label} | {backend} | {r['epe']:.2f} | {r['s0-10']:.2f} | {r['s10-40']:.2f} | {r['s40+']:.2f} | "
-              f"{net_ms:.0f} | {ref_ms:.0f} | {total:.0f} | {cpu:.0f} |", flush=True)  # fmt: skip
-    reader.close()
+            t_net[i].append(1000 * (t1 - t0))
+            t_ref[i].append(1000 * (t2 - t1))
+            t_cpu[i].append(1000 * (time.process_time() - c0))
+            acc[i].add(flow, s["flow"], s["valid"])
+    print("| option | runtime | EPE | s0-10 | s10-40 | s40+ | network ms | refinement ms | total ms | total CPU ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for i, (label, backend, _, _) in enumerate(options):
+        r = acc[i].result()
+        epe = " | ".join(f"{r[k]:.2f}" for k in ("epe", "s0-10", "s10-40", "s40+"))
+        ms = [statistics.median(t) for t in (t_net[i], t_ref[i], np.add(t_net[i], t_ref[i]), t_cpu[i])]
+        print(f"| {label} | {backend} | {epe} | " + " | ".join(f"{m:.0f}" for m in ms) + " |")
+    print(f"# {_machine()}")
+
+
+def graphs(args: argparse.Namespace) -> None:
+    import onnxruntime as ort
+
+    def session(path: Path):
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = torch.get_num_threads()
+        options.log_severity_level = 3
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+    sessions = [session(p) for p in args.onnx]
+    h, w = parse_size(args.size)
+    img = np.random.default_rng(0).integers(0, 256, (args.batch, 3, h, w)).astype(np.float32)
+    feed = {"projected": img, "captured": img[:, :, ::-1, ::-1].copy()}
+    flows = [s.run(None, feed)[0] for s in sessions]  # and the warm-up
+    wall, cpu = [[] for _ in sessions], [[] for _ in sessions]
+    print(f"# {h} x {w}, batch {args.batch}; {_machine()}")
+    for _ in range(args.rounds):
+        for i, s in enumerate(sessions):
+            t0, c0 = time.perf_counter(), time.process_time()
+            s.run(None, feed)
+            wall[i].append(1000 * (time.perf_counter() - t0) / args.batch)
+            cpu[i].append(1000 * (time.process_time() - c0) / args.batch)
+    print("| graph | ms per pair (wall) | CPU ms per pair | flow vs the first: mean / max px |\n|---|---|---|---|")
+    for path, flow, wl, cl in zip(args.onnx, flows, wall, cpu, strict=True):
+        diff = np.abs(flow - flows[0])
+        ms = f"{statistics.median(wl):.0f} | {statistics.median(cl):.0f}"
+        print(f"| {path} | {ms} | {diff.mean():.1e} / {diff.max():.1e} |")
     print(f"# {_machine()}")
 
 
@@ -141,8 +186,19 @@ def main() -> None:
     fst.add_argument("--data", type=Path, required=True)
     fst.add_argument("--onnx", type=Path)
     fst.add_argument("--limit", type=int)
+    fst.add_argument(
+        "--runtimes",
+        default="torch,onnxruntime",
+        help="one process per runtime: under load, "
+        "onnxruntime's waiting threads slow torch's OpenMP workers down several times",
+    )
+    grp = sub.add_parser("graphs")
+    grp.add_argument("onnx", type=Path, nargs="+")
+    grp.add_argument("--size", default="384x512")
+    grp.add_argument("--batch", type=int, default=1)
+    grp.add_argument("--rounds", type=int, default=7)
     args = ap.parse_args()
-    latency(args) if args.what == "latency" else fast(args)
+    {"latency": latency, "fast": fast, "graphs": graphs}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -56,7 +56,7 @@ from .checkpoint import reference_checkpoint, resolve_checkpoint
 from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_header, sheet_row
 from .confidence import Prediction, as_prediction
 from .evaluate import sample_indices
-from .frames import register_any_size
+from .frames import register_any_size, resize_to
 from .infer import FAST_MAX_SIDE, flows_resized, open_network
 from .metrics import BUCKETS, KEYS, THRESHOLDS, EPEAccumulator
 from .refine import FAST_REFINE, GeometricRefiner
@@ -79,7 +79,9 @@ class Method:
     ``kind`` is ``"model"`` (gated by ``--fail-above``) or ``"baseline"`` (never gated); ``refined``
     says whether the geometric refinement (``projreg.refine``) follows the network; ``tracker``: the
     :class:`~projreg.track.Tracker` or :class:`~projreg.track.FlowTracker` that ``predict`` is, for a
-    tracking method (reset at the start of each sequence).
+    tracking method (reset at the start of each sequence); ``prefetch``: given the next samples'
+    ``(projected, captured)`` pairs, computes their network flows in batches, which ``predict`` then
+    uses for those very arrays (``bench --batch-size``).
     """
 
     name: str
@@ -87,6 +89,7 @@ class Method:
     predict: Callable[[np.ndarray, np.ndarray], np.ndarray | Prediction]
     refined: bool = False
     tracker: Tracker | FlowTracker | None = None
+    prefetch: Callable[[Sequence[tuple[np.ndarray, np.ndarray]]], None] | None = None
 
 
 def model_methods(
@@ -99,6 +102,7 @@ def model_methods(
     backend: str = "torch",
     fast: bool = False,
     track: bool = False,
+    batch_size: int = 1,
 ) -> list[Method]:
     """A checkpoint as methods named ``name`` (default: the file stem), per ``refine`` (``REFINE_MODES``).
 
@@ -107,7 +111,8 @@ def model_methods(
     ``precision`` and ``backend`` say where and how the network runs (:func:`projreg.infer.open_network`;
     ``backend="onnxruntime"`` takes a ``.onnx`` file); ``fast`` is ``predict --fast``'s path (the
     network at ``FAST_MAX_SIDE``, the refinement ``FAST_REFINE``; names end in ``-fast``). ``track``:
-    also the refined method tracking (:class:`~projreg.track.Tracker`), named ``name+track``.
+    also the refined method tracking (:class:`~projreg.track.Tracker`), named ``name+track``;
+    ``batch_size`` > 1: the methods get a ``prefetch`` (:class:`BatchedFlows`) shared between them.
     """
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
@@ -117,19 +122,51 @@ def model_methods(
     name = (name or Path(path).stem) + ("-fast" if fast else "")
     refiner = GeometricRefiner(FAST_REFINE if fast else None)
     max_side = FAST_MAX_SIDE if fast else sys.maxsize
+    batched = BatchedFlows(net, max_side, batch_size) if batch_size > 1 else None
 
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+        if batched is not None:
+            return batched(img0, img1)
         return flows_resized(net, [(img0, img1)], max_side)[0]
 
     def refined(img0: np.ndarray, img1: np.ndarray) -> Prediction:
         return refiner.predict(img0, img1, raw(img0, img1))
 
+    prefetch = None if batched is None else batched.prefetch
     if refine == "off":
-        return [Method(name, "model", raw)]
-    both = [Method(name, "model", refined, True), Method(f"{name}-raw", "model", raw)]
+        return [Method(name, "model", raw, prefetch=prefetch)]
+    both = [
+        Method(name, "model", refined, True, prefetch=prefetch),
+        Method(f"{name}-raw", "model", raw, prefetch=prefetch),
+    ]
     tracker = Tracker(refined, refiner)
     return (both if refine == "both" else both[:1]) + ([Method(f"{name}+track", "model", tracker, True, tracker)]
                                                       if track else [])  # fmt: skip
+
+
+class BatchedFlows:
+    """Network flows computed ahead in batches (``bench --batch-size``), handed out by the arrays.
+
+    :meth:`prefetch` runs the next pairs through the network, ``batch_size`` pairs of one size per
+    call (:func:`~projreg.infer.flows_resized`); calling the object with a pair returns the flow
+    prefetched for those arrays (the same projected array, an equal captured one), or computes it
+    alone when it was not prefetched (a captured image resized to the projected one's size).
+    """
+
+    def __init__(self, net: Callable, max_side: int, batch_size: int) -> None:
+        self.net, self.max_side, self.batch_size = net, max_side, batch_size
+        self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
+        self.flows: list[np.ndarray] = []
+
+    def prefetch(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> None:
+        self.pairs = list(pairs)
+        self.flows = flows_resized(self.net, self.pairs, self.max_side, self.batch_size)
+
+    def __call__(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
+        for (a, b), flow in zip(self.pairs, self.flows, strict=True):
+            if a is projected and (b is captured or np.array_equal(b, captured)):
+                return flow
+        return flows_resized(self.net, [(projected, captured)], self.max_side)[0]
 
 
 def baseline_method(name: str, equalize: bool = False) -> Method:
@@ -224,18 +261,19 @@ def resolve_methods(
     backend: str = "torch",
     fast: bool = False,
     track: bool = False,
+    batch_size: int = 1,
 ) -> tuple[list[Method], Path | None]:
     """Checkpoints then baselines as methods; without checkpoints, the shipped reference model if any.
 
     Each checkpoint gives one to three methods (``model_methods``: ``refine``, ``device``,
-    ``precision``, ``backend``, ``fast``, ``track``); with ``track``, the dense baselines' tracking
+    ``precision``, ``backend``, ``fast``, ``track``, ``batch_size``); with ``track``, the dense baselines' tracking
     methods follow the baselines.
 
     Returns:
         ``(methods, reference)``: ``reference`` is the shipped checkpoint when it was added, else None.
         A checkpoint whose stem is already taken is named by its path without suffix.
     """
-    options = {"precision": precision, "backend": backend, "fast": fast, "track": track}
+    options = {"precision": precision, "backend": backend, "fast": fast, "track": track, "batch_size": batch_size}
     reference = None if models else reference_checkpoint()
     methods: list[Method] = []
     if reference is not None:
@@ -274,6 +312,7 @@ def run_bench(
     sheet: list[np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
     track: bool = False,
+    batch_size: int = 1,
 ) -> dict:
     """Benchmark checkpoints and baselines on one dataset directory.
 
@@ -299,6 +338,9 @@ def run_bench(
             for each of the first ``SHEET_ROWS`` samples: the first method's pictures.
         progress: called ``(done, total)`` once the inputs are checked (``done`` 0), then after each sample.
         track: tracking mode on a sequence dataset (module docstring).
+        batch_size: > 1: each model's network runs on this many samples per call (pairs of one size
+            batched, :class:`BatchedFlows`); a model's ``ms_per_pair`` then counts its share of the
+            batch's network call.
 
     Returns:
         The report: ``{"dataset": {...}, "reference_model": str | None, "results": [...]}``, one
@@ -307,6 +349,10 @@ def run_bench(
     data = Path(data)
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
+    if batch_size < 1:
+        raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
+    if track and batch_size > 1:
+        raise ProjregError("--track registers frame after frame; drop --batch-size")
     try:
         reader = ShardReader(data)
     except ProjsynthError as e:
@@ -322,7 +368,8 @@ def run_bench(
         if not indices:
             raise ProjregError(f"--data {data}: the dataset has no samples")
         methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device, refine=refine,
-                                             precision=precision, backend=backend, fast=fast, track=track)  # fmt: skip
+                                             precision=precision, backend=backend, fast=fast, track=track,
+                                             batch_size=batch_size)  # fmt: skip
         methods += list(extra_methods)
         if not methods:
             raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")
@@ -340,8 +387,13 @@ def run_bench(
                 m.tracker.counts = dict.fromkeys(m.tracker.counts, 0)
         if progress:
             progress(0, len(indices))  # the bar from here: the inputs are good
+        chunk: dict[int, dict] = {}
         for done, k in enumerate(indices, start=1):
-            s = first if done == 1 else _read(reader, k)
+            if done not in chunk:  # the next batch_size samples, read (and their network flows computed) together
+                ks = indices[done - 1 : done - 1 + batch_size]
+                chunk = {done + j: first if done + j == 1 else _read(reader, kj) for j, kj in enumerate(ks)}
+                shares = _prefetch(methods, list(chunk.values()))
+            s = chunk[done]
             groups = sample_groups(s["params"])
             sid = str(s["params"].get("sample_id", k))
             if track and s["params"].get("frame", 0) == 0:  # a sequence starts: the trackers forget
@@ -352,7 +404,7 @@ def run_bench(
             for m, sc in zip(methods, scores, strict=True):
                 t0 = time.perf_counter()
                 pred = as_prediction(register_any_size(m.predict, s["projected"], s["captured"]))
-                sc.ms.append(1000 * (time.perf_counter() - t0))
+                sc.ms.append(1000 * (time.perf_counter() - t0) + shares.get(m.name, 0.0))
                 sc.add(pred, s["flow"], s["valid"], groups, sid, str(s["params"].get("sequence", "")))
                 # the compensation honours what a method claims: unclaimed pixels get no content
                 flows[m.name] = pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow,
@@ -422,6 +474,19 @@ def versus_baselines(results: Sequence[dict], ratio_limit: float = RATIO_LIMIT) 
 
 def _mean(values: Sequence[float]) -> float | None:
     return float(np.mean(values)) if len(values) else None
+
+
+def _prefetch(methods: Sequence[Method], samples: Sequence[dict]) -> dict[str, float]:
+    """Each distinct ``prefetch`` of ``methods`` on the samples' pairs, once; its milliseconds per
+    pair, keyed by the names of the methods that share it."""
+    pairs = [(s["projected"], resize_to(s["captured"], s["projected"].shape)) for s in samples]
+    spent: dict[Callable, float] = {}
+    for m in methods:
+        if m.prefetch is not None and m.prefetch not in spent:
+            t0 = time.perf_counter()
+            m.prefetch(pairs)
+            spent[m.prefetch] = 1000 * (time.perf_counter() - t0) / len(pairs)
+    return {m.name: spent[m.prefetch] for m in methods if m.prefetch is not None}
 
 
 def _read(reader: ShardReader, k: int) -> dict:

@@ -214,7 +214,7 @@ def export(
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
 PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
 BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
-FAST_HELP = "Fast path: the network at <= 256 px, the refinement from the network's hypothesis only."
+FAST_HELP = "Fast path: the network, then the refinement from its hypothesis only, both at <= 256 px."
 
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
@@ -241,6 +241,9 @@ def bench(
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
     backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="torch|onnxruntime")] = "torch",
+    batch_size: Annotated[
+        int, typer.Option(help="Samples per network call (pairs of one size are batched).", metavar="N")
+    ] = 1,
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
@@ -269,7 +272,7 @@ def bench(
             report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
                                    limit=limit, device=device, precision=precision, backend=backend, fast=fast,
                                    compensation=compensation, photometric=photometric, sheet=rows,
-                                   progress=bar.done, track=track)  # fmt: skip
+                                   progress=bar.done, track=track, batch_size=batch_size)  # fmt: skip
         lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
                           sheet=None if sheet is None else (sheet, rows))  # all or nothing
         violations = lib.check_thresholds(report, thresholds)

@@ -12,6 +12,9 @@ resized image's pixel ``c'`` is the captured image's ``c = (c' + 0.5) / s - 0.5`
 Ground truth goes the other way for training (:func:`truth_to_projected_frame`). Flows are always
 on the projected grid; only their values are in captured pixels.
 
+A whole pair is shrunk the same way for a faster run (:func:`shrink`: the network's ``--max-side``,
+the fast path's refinement) and the flow resized back onto the pair's grid (:func:`resize_flow`).
+
 Example:
     >>> import numpy as np
     >>> f = flow_to_captured(np.zeros((2, 2, 2), np.float32), (0.5, 0.5))
@@ -44,6 +47,27 @@ def resize_to(image: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
         return image
     shrink = h * w < image.shape[0] * image.shape[1]
     return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+def shrink(image: np.ndarray, max_side: int) -> np.ndarray:
+    """``image`` with its longer side shrunk to ``max_side`` (``cv2.INTER_AREA``, aspect kept,
+    ``w' = round(W s)``, ``h' = round(H s)``); unchanged when it already fits."""
+    h, w = image.shape[:2]
+    s = max_side / max(h, w)
+    if s >= 1:
+        return image
+    return cv2.resize(image, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+
+
+def resize_flow(flow: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A flow computed on resized images on the ``shape[:2]`` grid instead, in its pixels: bilinear
+    (``cv2.INTER_LINEAR``), u scaled by ``W / w'`` and v by ``H / h'`` (either direction)."""
+    h, w = shape[:2]
+    if flow.shape[:2] == (h, w):
+        return flow
+    small_h, small_w = flow.shape[:2]
+    big = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
+    return (big * np.array([w / small_w, h / small_h], np.float32)).astype(np.float32)
 
 
 def _grid(h: int, w: int) -> np.ndarray:

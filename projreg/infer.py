@@ -20,11 +20,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from . import ProjregError
+from .frames import resize_flow, shrink
 from .model.net import SSJMFlow
 from .onnx_export import INPUTS, OUTPUT
 
@@ -172,27 +172,6 @@ def open_network(
     return OnnxNetwork(Path(model), dev)
 
 
-def shrink(image: np.ndarray, max_side: int) -> np.ndarray:
-    """``image`` with its longer side shrunk to ``max_side`` (``cv2.INTER_AREA``, aspect kept,
-    ``w' = round(W s)``, ``h' = round(H s)``); unchanged when it already fits."""
-    h, w = image.shape[:2]
-    s = max_side / max(h, w)
-    if s >= 1:
-        return image
-    return cv2.resize(image, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
-
-
-def enlarge_flow(flow: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """A flow computed on shrunk images back on the ``shape[:2]`` grid, in its pixels: bilinear
-    (``cv2.INTER_LINEAR``), u scaled by ``W / w'`` and v by ``H / h'``."""
-    h, w = shape[:2]
-    if flow.shape[:2] == (h, w):
-        return flow
-    small_h, small_w = flow.shape[:2]
-    big = cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
-    return (big * np.array([w / small_w, h / small_h], np.float32)).astype(np.float32)
-
-
 def flows_resized(
     net: Network, pairs: Sequence[tuple[np.ndarray, np.ndarray]], max_side: int, batch_size: int = 1
 ) -> list[np.ndarray]:
@@ -201,8 +180,8 @@ def flows_resized(
     Args:
         net: a network (module docstring).
         pairs: ``(projected, captured)`` uint8 RGB ``(H, W, 3)`` of one size per pair.
-        max_side: the longer side the network sees at most (:func:`shrink`); flows come back on
-            each pair's own grid in its pixels (:func:`enlarge_flow`).
+        max_side: the longer side the network sees at most (:func:`~projreg.frames.shrink`); flows come back on
+            each pair's own grid in its pixels (:func:`~projreg.frames.resize_flow`).
         batch_size: at most this many pairs per network call; only pairs whose network inputs share a
             size are batched together (in order of first appearance).
 
@@ -221,5 +200,5 @@ def flows_resized(
             chunk = members[start : start + batch_size]
             out = net(np.stack([small[i][0] for i in chunk]), np.stack([small[i][1] for i in chunk]))  # [n, h, w, 2]
             for i, flow in zip(chunk, out, strict=True):
-                flows[i] = enlarge_flow(np.asarray(flow, np.float32), pairs[i][0].shape)
+                flows[i] = resize_flow(np.asarray(flow, np.float32), pairs[i][0].shape)
     return flows

@@ -37,7 +37,7 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
@@ -47,6 +47,7 @@ from threadpoolctl import ThreadpoolController
 from . import ProjregError
 from .baselines import SiftRansac, homography_flow, proper_homography, to_gray
 from .confidence import CONFIDENT, Prediction, pixel_confidence, ramp
+from .frames import resize_flow, shrink
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
 _BLAS = ThreadpoolController()
@@ -70,7 +71,9 @@ class RefineConfig:
     the fine P-spline added to the coarse one where cross-validation says the residual carries finer
     surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
     only); ``periodic_peak``: pixels where the projected image repeats itself (:func:`periodicity` at
-    least this) are not claimed, whatever the checks say (1: no test).
+    least this) are not claimed, whatever the checks say (1: no test); ``max_side``:
+    refine the pair shrunk to this longer side and bring the flow and the confidence back to its own
+    grid (None: at its own size; the pixel parameters are then in the shrunk pair's pixels).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -94,8 +97,9 @@ class RefineConfig:
     confidence_radius: float = 0.03
     rival_margin: float = 0.05
     detail_grid: tuple[int, int] | None = (14, 11)
-    periodic_peak: float = 0.85
     detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
+    periodic_peak: float = 0.85
+    max_side: int | None = None
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -103,13 +107,31 @@ class RefineConfig:
         for name in ("ransac_px", "refit_px", "robust_px", "ncc_sigma"):
             if not getattr(self, name) > 0:
                 raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
+        if self.max_side is not None and self.max_side < MIN_SIDE:
+            raise ProjregError(f"refine max_side must be >= {MIN_SIDE}, got {self.max_side}")
         if not self.contrast_sigma >= 0:
             raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
 
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
-# four); measured in docs/benchmarks.md ("Inference latency")
-FAST_REFINE = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False, detail_grid=None, periodic_peak=1.0)
+# four), without the detail level and the periodicity test, on the pair shrunk to 256 px with the
+# pixel parameters halved (windows, thresholds, fit points for a 384 x 512 pair; the contrast window
+# stays the 8 px measured with it, 16 px at full size); measured in docs/benchmarks.md ("Inference latency")
+FAST_REFINE = RefineConfig(
+    plain_pass=False,
+    identity_pass=False,
+    sift_pass=False,
+    max_side=256,
+    contrast_sigma=8.0,
+    ncc_sigma=3.5,
+    ransac_px=1.0,
+    refit_px=0.5,
+    robust_px=0.5,
+    free_px=8.0,
+    fit_points=3072,
+    detail_grid=None,
+    periodic_peak=1.0,
+)
 
 
 @dataclass(frozen=True)
@@ -173,6 +195,8 @@ class GeometricRefiner:
             raise ProjregError(f"refine needs projected, captured (H, W, 3) and flow (H, W, 2) of one size, got "
                                f"{projected.shape}, {captured.shape}, {flow.shape}")  # fmt: skip
         flow = np.asarray(flow, np.float32)
+        if self.config.max_side is not None and max(h, w) > self.config.max_side:
+            return self._predict_shrunk(projected, captured, flow, identity)
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
@@ -220,6 +244,19 @@ class GeometricRefiner:
         why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
         pred = Prediction(cands[best], claimed, not why, why)
         return pred, RefineInfo(name, kind, scores, conf, share)
+
+    def _predict_shrunk(
+        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool
+    ) -> tuple[Prediction, RefineInfo]:
+        """:meth:`predict_info` on the pair shrunk to ``max_side``; flow and confidence resized back
+        (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``."""
+        side = self.config.max_side
+        small0, small1 = shrink(projected, side), shrink(captured, side)
+        pred, info = self.predict_info(small0, small1, resize_flow(flow, small0.shape), identity)
+        h, w = projected.shape[:2]
+        conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
+        pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=conf >= CONFIDENT)
+        return pred, replace(info, confidence=conf)
 
     def _sift_hypothesis(self, projected: np.ndarray, captured: np.ndarray, step: int) -> dict:
         """``{"sift": (H, flow)}`` when SIFT + RANSAC finds a proper homography of the pair, else ``{}``."""

@@ -127,10 +127,35 @@ def local_window_scores(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> torc
     f0, f1 = f0.to(dtype) / math.sqrt(c), f1.to(dtype).contiguous()
     if torch.is_grad_enabled() and (f0.requires_grad or f1.requires_grad):
         scores = _WindowDot.apply(f0, f1, r)  # [B, K, H, W]
-    else:  # inference and export: plain operations (the exporter traces ``out=`` arguments very slowly)
-        f1p = F.pad(f1, (r, r, r, r))  # [B, C, H+2r, W+2r]
-        scores = torch.stack([(f0 * f1p[:, :, ys, xs]).sum(dim=1) for ys, xs in _window_slices(r, h, w)], dim=1)
+    else:  # inference and export: row products (the exporter traces ``out=`` arguments very slowly)
+        scores = _banded_window_dot(f0, f1, r)  # [B, K, H, W]
     return scores.masked_fill(outside, float("-inf"))
+
+
+def _banded_window_dot(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> torch.Tensor:
+    """:class:`_WindowDot`'s forward as one matrix product per window row ``dy``.
+
+    Each row of f0 against the row ``dy`` below it in r-padded f1 gives a ``[W, W+2r]`` product
+    whose band ``(x, x + j)``, ``j < 2r + 1``, holds the window's column offsets; the band is read by
+    flattening the product, padding it by ``W`` and reshaping to rows of ``W + 2r + 1`` (the band's
+    diagonal becomes the first ``2r + 1`` columns). About 14x the multiply-adds of the 81 per-offset
+    products at radius 4 on a 128-wide map, but in matrix products instead of 81 element-wise passes
+    and channel sums over the map: 10x faster in onnxruntime on a 96 x 128 map, 3-4x in PyTorch
+    (docs/benchmarks.md, "session 9"); equal up to float rounding.
+
+    Convention: f0, f1 ``[B, C, H, W]`` -> ``[B, K, H, W]`` in :func:`window_offsets` order.
+    """
+    b, c, h, w = f0.shape
+    r, k = radius, 2 * radius + 1
+    rows0 = f0.permute(0, 2, 3, 1).reshape(b * h, w, c)  # [B*H, W, C]
+    f1p = F.pad(f1, (r, r, r, r)).permute(0, 2, 1, 3)  # [B, H+2r, C, W+2r]
+    bands = []
+    for dy in range(k):
+        prod = torch.matmul(rows0, f1p[:, dy : dy + h].reshape(b * h, c, w + 2 * r))  # [B*H, W, W+2r]
+        flat = F.pad(prod.reshape(b * h, w * (w + 2 * r)), (0, w))  # [B*H, W * (W+2r+1)]
+        bands.append(flat.reshape(b * h, w, w + 2 * r + 1)[:, :, :k])  # [B*H, W, 2r+1]: dx = -r..r
+    scores = torch.stack(bands, dim=2).reshape(b, h, w, k * k)  # [B, H, W, K], dy outer, dx inner
+    return scores.permute(0, 3, 1, 2)
 
 
 def local_window_gather(x: torch.Tensor, prob: torch.Tensor, radius: int) -> torch.Tensor:
@@ -152,6 +177,13 @@ def local_window_gather(x: torch.Tensor, prob: torch.Tensor, radius: int) -> tor
     return out
 
 
+def window_softmax(scores: torch.Tensor) -> torch.Tensor:
+    """``torch.softmax(scores, dim=1)`` for window scores ``[B, K, H, W]``, taken over the last axis of
+    a ``[B, H, W, K]`` view: onnxruntime's Softmax on a middle axis transposes its input and output
+    itself, and here the transposes cancel against the window products' own layout."""
+    return torch.softmax(scores.permute(0, 2, 3, 1), dim=-1).permute(0, 3, 1, 2)
+
+
 def local_correlation_softmax(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Flow as the softmax-expected offset of each img0 pixel within a ``(2r+1)^2`` img1 window.
 
@@ -165,7 +197,7 @@ def local_correlation_softmax(f0: torch.Tensor, f1: torch.Tensor, radius: int) -
 
     Convention: flow img0 -> img1 in pixels of this map.
     """
-    prob = torch.softmax(local_window_scores(f0, f1, radius), dim=1)  # [B, K, H, W]
+    prob = window_softmax(local_window_scores(f0, f1, radius))  # [B, K, H, W]
     offsets = window_offsets(radius, device=f0.device, dtype=f0.dtype)  # [K, 2]
     flow = torch.einsum("bkhw,kd->bdhw", prob, offsets)  # [B, 2, H, W]
     return flow, prob

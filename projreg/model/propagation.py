@@ -12,7 +12,7 @@ import math
 import torch
 from torch import nn
 
-from .matching import local_window_gather, local_window_scores
+from .matching import local_window_gather, local_window_scores, window_softmax
 
 
 class FlowPropagation(nn.Module):
@@ -48,7 +48,7 @@ class FlowPropagation(nn.Module):
             return out.transpose(1, 2).reshape(b, 2, h, w)
         qm = q.transpose(1, 2).reshape(b, c, h, w)  # [B, C, H, W]
         km = k.transpose(1, 2).reshape(b, c, h, w)  # [B, C, H, W]
-        prob = torch.softmax(local_window_scores(qm, km, self.radius), dim=1)  # [B, K, H, W]
+        prob = window_softmax(local_window_scores(qm, km, self.radius))  # [B, K, H, W]
         return local_window_gather(flow, prob, self.radius)
 
     def extra_repr(self) -> str:

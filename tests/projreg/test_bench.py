@@ -365,3 +365,34 @@ def test_refine_only_is_a_baseline_row_beside_sift(tiny_train, monkeypatch):
     only = rows["refine-only"]
     assert only["kind"] == "baseline" and not only["refined"] and math.isfinite(only["epe"])
     assert 0.0 <= only["claimed"] <= 1.0 and len(only["pairs"]) == len(rows["sift-ransac"]["pairs"])
+
+
+def test_batches_of_samples_change_no_flow(tiny_train, tiny_ckpt, monkeypatch):
+    """``--batch-size``: the network runs on several samples per call; every figure stays the same."""
+    calls = []
+    flows_resized = projreg.bench.flows_resized
+
+    def counting(net, pairs, max_side, batch_size=1):
+        calls.append((len(pairs), batch_size))
+        return flows_resized(net, pairs, max_side, batch_size)
+
+    monkeypatch.setattr(projreg.bench, "flows_resized", counting)
+    one = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=5, refine="both", device=CPU)
+    calls.clear()
+    three = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=5, refine="both", device=CPU, batch_size=3)
+    assert calls == [(1, 1), (1, 1), (3, 3), (2, 3)]  # each row's warm-up, then 3 + 2 samples for both rows
+    for a, b in zip(one["results"], three["results"], strict=True):
+        assert a["name"] == b["name"]
+        np.testing.assert_allclose([p["epe"] for p in b["pairs"]], [p["epe"] for p in a["pairs"]], atol=1e-4)
+        assert b["ms_per_pair"] > 0
+    for bad, match in (({"batch_size": 0}, "--batch-size must be >= 1"), ({"batch_size": 2, "track": True}, "--track")):
+        with pytest.raises(ProjregError, match=match):
+            run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=2, device=CPU, **bad)
+
+
+def test_bench_takes_a_batch_size(tiny_train, tiny_ckpt, tmp_path):
+    out = tmp_path / "b.json"
+    args = ["--data", tiny_train, "--model", tiny_ckpt, "--baselines", "none", "--limit", "3", "--json", out]
+    result = _cli("bench", *args, "--batch-size", "2", "-q")
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(out.read_text())["results"][0]["images"] == 3

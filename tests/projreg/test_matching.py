@@ -14,6 +14,7 @@ from projreg.model.matching import (
     flow_warp,
     global_correlation_softmax,
     local_correlation_softmax,
+    local_window_scores,
     window_offsets,
 )
 from projreg.model.propagation import FlowPropagation
@@ -206,3 +207,22 @@ def test_global_propagation_copies_flow_from_similar_features():
     out = prop(feat, flow)
     assert (out[0, 0, :, 2:] + 1.0).abs().max() < 1e-6
     torch.testing.assert_close(out[0, 0, :, :2], torch.full((4, 2), (7 * 4.0 + 100.0) / 8, dtype=torch.float64))
+
+
+@pytest.mark.parametrize(("radius", "h", "w"), [(1, 5, 7), (2, 6, 3), (4, 9, 12)])
+def test_window_scores_by_row_products_equal_the_per_offset_products(radius, h, w):
+    """Inference and export take the window scores from one matrix product per window row (the
+    band of each product); training from the per-offset products of the autograd function."""
+    g = torch.Generator().manual_seed(radius)
+    f0, f1 = torch.randn(2, 8, h, w, generator=g), torch.randn(2, 8, h, w, generator=g)
+    with torch.no_grad():
+        banded = local_window_scores(f0, f1, radius)  # [B, K, H, W]
+    per_offset = local_window_scores(f0.requires_grad_(), f1, radius).detach()
+    inside = torch.isfinite(per_offset)
+    assert torch.equal(inside, torch.isfinite(banded))
+    torch.testing.assert_close(banded[inside], per_offset[inside], rtol=1e-5, atol=1e-5)
+    # by hand: offset (dx, dy) = (1, -1) at pixel (x, y) = (2, 3) compares f0[3, 2] with f1[2, 3]
+    k = (radius - 1) * (2 * radius + 1) + radius + 1
+    if 3 < h and 3 < w:
+        expected = (f0[:, :, 3, 2] * f1[:, :, 2, 3]).sum(1) / 8**0.5
+        torch.testing.assert_close(banded[:, k, 3, 2], expected.detach(), rtol=1e-5, atol=1e-5)

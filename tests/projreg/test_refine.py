@@ -1,12 +1,17 @@
 """Geometric refinement: its parts against hand-computed values, and the whole on projsynth pairs."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
 
 from projreg import ProjregError
 from projreg.baselines import homography_flow
+from projreg.confidence import CONFIDENT
+from projreg.frames import resize_flow, shrink
 from projreg.refine import (
+    FAST_REFINE,
     GeometricRefiner,
     RefineConfig,
     SplineDesign,
@@ -400,3 +405,28 @@ def test_a_grating_matched_one_period_off_is_not_claimed():
             assert pred.claimed.mean() > 0.3 and np.median(err[pred.claimed]) > 4.0
         else:
             assert pred.claimed.mean() < most, pred.claimed.mean()
+
+
+def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(samples):
+    """``max_side``: the refinement of the shrunk pair, flow and confidence resized to the pair's grid;
+    the default configuration refines at the pair's own size."""
+    assert RefineConfig().max_side is None
+    s = samples[1]
+    img0, img1, flow = s["projected"], s["captured"], s["flow"] + 2.0  # 128 x 160, 2 px off the truth
+    config = replace(FAST_REFINE, max_side=80)
+    pred, info = GeometricRefiner(config).predict_info(img0, img1, flow)
+    small0, small1 = shrink(img0, 80), shrink(img1, 80)  # 64 x 80
+    ref, ref_info = GeometricRefiner(replace(config, max_side=None)).predict_info(
+        small0, small1, resize_flow(flow, small0.shape)
+    )
+    np.testing.assert_array_equal(pred.flow, resize_flow(ref.flow, img0.shape))
+    assert pred.flow.shape == flow.shape and info.confidence.shape == flow.shape[:2]
+    assert pred.registered == ref.registered and info.scores == ref_info.scores
+    np.testing.assert_array_equal(pred.claimed, info.confidence >= CONFIDENT)
+    epe = np.linalg.norm(pred.flow - s["flow"], axis=-1)[s["valid"]].mean()
+    assert epe < 1.0, epe  # sub-pixel at half size still
+
+
+def test_refine_max_side_is_checked():
+    with pytest.raises(ProjregError, match="refine max_side must be >= 32"):
+        RefineConfig(max_side=16)
