@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO ?= demo
 
-.PHONY: device-wheels clean-kernels setup test lint demo bench reference-model test-bench real-bench hard-bench real-protocol bench-decode clean
+.PHONY: device-wheels clean-kernels setup test lint demo bench reference-model test-bench real-bench hard-bench external-bench real-protocol bench-decode clean
 
 setup: $(VENV)/.installed
 
@@ -88,6 +88,13 @@ hard-bench: setup
 		--split all --seed 11 --blend physical --transforms $(SPREAD32) --workers 2 --quiet
 	$(BIN)/projreg bench --data build/hard-test --baselines $(BASELINES) --refine both --limit 48 \
 		--json build/hard-bench.json --markdown build/hard-bench.md --quiet
+
+# ... and issue 16's check on pairs rendered by a rig written from scratch in bench/external_rig.py (not projsynth):
+# `projreg predict` per pair against SIFT + RANSAC and DIS medium; the second run is a bent sheet with painted stripes
+external-bench: setup
+	$(PY) bench/external_rig.py --out build/external --json build/external.json --markdown build/external.md
+	$(PY) bench/external_rig.py --out build/external-stripes --shape bend --albedo stripes --response gamma --ambient 0 \
+		--json build/external-stripes.json --markdown build/external-stripes.md
 
 # The paper's real-world protocol (Table 4) on the virtual rig: a concave surface with a heart-like textured
 # interference and a convex one with a brightened centre; 11 dot patterns -> 400-point truth; the bench on
