@@ -232,13 +232,15 @@ class GeometricRefiner:
                 cands[key] = self.hypothesis(gray0, gray1, H, weight, step, textured, support, prior)[2]
                 scores[key] = alignment_score(*normalised, cands[key], cfg.ncc_sigma, evidence)
         best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
-        conf = self.confidence(normalised, cands, scores, best, evidence)
+        # a repeating pattern: a flow off by one period passes every check (computed once per pair)
+        repeating = periodicity(normalised[0]) >= cfg.periodic_peak if cfg.periodic_peak < 1 else None
+        conf = self.confidence(normalised, cands, scores, best, evidence, repeating)
         net = [k for k in scores if k.startswith("network/")]
         if (conf >= CONFIDENT).mean() < cfg.min_evidence and net and best not in net:
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than the identity's
             best = max(net, key=lambda k: scores[k])
-            conf = self.confidence(normalised, cands, scores, best, evidence)
+            conf = self.confidence(normalised, cands, scores, best, evidence, repeating)
         claimed = conf >= CONFIDENT
         name, kind = best.split("/")
         why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
@@ -327,9 +329,11 @@ class GeometricRefiner:
         scores: dict[str, float],
         best: str,
         evidence: np.ndarray,
+        repeating: np.ndarray | None = None,
     ) -> np.ndarray:
         """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`projreg.confidence.pixel_confidence`):
-        texture, local NCC, forward-backward residual and agreement with the close runners-up."""
+        texture, local NCC, forward-backward residual and agreement with the close runners-up; 0 where
+        ``repeating`` (bool ``(H, W)``: the projected image repeats itself, :func:`periodicity`)."""
         cfg = self.config
         gray0, gray1 = normalised
         flow = cands[best]
@@ -343,9 +347,7 @@ class GeometricRefiner:
             spread = np.maximum(spread, np.linalg.norm(other - flow, axis=-1))
         ncc = local_ncc(gray0, warped, cfg.ncc_sigma)
         conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
-        if cfg.periodic_peak < 1:  # a repeating pattern: a flow off by one period passes every check
-            conf = np.where(periodicity(gray0) >= cfg.periodic_peak, 0.0, conf)
-        return conf
+        return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
 
     def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray) -> np.ndarray:
         """DIS flow from the projected image to the captured image warped back by ``base``."""
