@@ -115,8 +115,8 @@ class RefineConfig:
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
 # four), without the detail level and the periodicity test, on the pair shrunk to 256 px with the
-# pixel parameters halved (windows, thresholds, fit points for a 384 x 512 pair; the contrast window
-# stays the 8 px measured with it, 16 px at full size); measured in docs/benchmarks.md ("Inference latency")
+# pixel parameters halved (windows, thresholds, fit points for a 384 x 512 pair; its contrast window,
+# 8 px, is half the full-size default before session 9, as measured); docs/benchmarks.md ("Inference latency")
 FAST_REFINE = RefineConfig(
     plain_pass=False,
     identity_pass=False,
@@ -308,14 +308,13 @@ class GeometricRefiner:
         step: int,
         support: np.ndarray,
         prior: np.ndarray,
-        detail: bool = True,
     ) -> np.ndarray:
-        """Step 3: ``base`` composed with the coarse spline of ``residual`` (and, with ``detail`` and a
-        ``detail_grid``, the cross-validated fine level, :func:`fit_detail`), held within ``free_px`` of
-        ``prior`` outside ``support``."""
+        """Step 3: ``base`` composed with the coarse spline of ``residual`` (and, with a ``detail_grid``,
+        the cross-validated fine level, :func:`fit_detail`), held within ``free_px`` of ``prior`` outside
+        ``support``."""
         cfg = self.config
         smooth = fit_bspline(residual, weight, cfg.grid, step, cfg.robust_px, cfg.ridge, cfg.irls_iterations)
-        if detail and cfg.detail_grid is not None:
+        if cfg.detail_grid is not None:
             smooth = (
                 smooth
                 + fit_detail(residual - smooth, weight, cfg.detail_grid, cfg.detail_bends, step, cfg.robust_px)[0]
