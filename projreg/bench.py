@@ -92,33 +92,37 @@ class Method:
     prefetch: Callable[[Sequence[tuple[np.ndarray, np.ndarray]]], None] | None = None
 
 
-def model_methods(
-    path: Path,
-    device: torch.device | str | None,
-    name: str | None = None,
-    refine: str = "on",
-    *,
-    precision: str = "fp32",
-    backend: str = "torch",
-    fast: bool = False,
-    track: bool = False,
-    batch_size: int = 1,
-) -> list[Method]:
-    """A checkpoint as methods named ``name`` (default: the file stem), per ``refine`` (``REFINE_MODES``).
+@dataclass(frozen=True)
+class ModelRun:
+    """How every checkpoint of a bench runs (:func:`model_methods`).
 
-    ``"on"``: the network then the geometric refinement; ``"off"``: the network alone; ``"both"``:
-    the refined method named ``name`` and the network alone named ``name-raw``. ``device``,
-    ``precision`` and ``backend`` say where and how the network runs (:func:`projreg.infer.open_network`;
-    ``backend="onnxruntime"`` takes a ``.onnx`` file); ``fast`` is ``predict --fast``'s path (the
-    network at ``FAST_MAX_SIDE``, the refinement ``FAST_REFINE``; names end in ``-fast``). ``track``:
-    also the refined method tracking (:class:`~projreg.track.Tracker`), named ``name+track``;
-    ``batch_size`` > 1: the methods get a ``prefetch`` (:class:`BatchedFlows`) shared between them.
+    ``refine`` (``REFINE_MODES``): ``"on"``, the network then the geometric refinement; ``"off"``, the
+    network alone; ``"both"``, the refined method named ``name`` and the network alone named
+    ``name-raw``. ``device``, ``precision`` and ``backend`` say where and how the network runs
+    (:func:`projreg.infer.open_network`; ``backend="onnxruntime"`` takes a ``.onnx`` file); ``fast`` is
+    ``predict --fast``'s path (the network at ``FAST_MAX_SIDE``, the refinement ``FAST_REFINE``; names
+    end in ``-fast``). ``track``: also the refined method tracking (:class:`~projreg.track.Tracker`),
+    named ``name+track``; ``batch_size`` > 1: the methods get a ``prefetch`` (:class:`BatchedFlows`)
+    shared between them.
     """
+
+    refine: str = "on"
+    device: torch.device | str | None = None
+    precision: str = "fp32"
+    backend: str = "torch"
+    fast: bool = False
+    track: bool = False
+    batch_size: int = 1
+
+
+def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun()) -> list[Method]:
+    """A checkpoint as methods named ``name`` (default: the file stem), run as ``run`` says (:class:`ModelRun`)."""
+    refine, track, fast, batch_size = run.refine, run.track, run.fast, run.batch_size
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
     if track and refine == "off":
         raise ProjregError("--track follows each frame with the refinement; use --refine on or both")
-    net = open_network(path, backend=backend, device=device, precision=precision)
+    net = open_network(path, backend=run.backend, device=run.device, precision=run.precision)
     name = (name or Path(path).stem) + ("-fast" if fast else "")
     refiner = GeometricRefiner(FAST_REFINE if fast else None)
     max_side = FAST_MAX_SIDE if fast else sys.maxsize
@@ -253,31 +257,22 @@ class _Scores:
 def resolve_methods(
     models: Sequence[Path],
     baselines: Sequence[str],
-    *,
+    run: ModelRun = ModelRun(),
     equalize: bool = False,
-    device: torch.device | str | None = None,
-    refine: str = "on",
-    precision: str = "fp32",
-    backend: str = "torch",
-    fast: bool = False,
-    track: bool = False,
-    batch_size: int = 1,
 ) -> tuple[list[Method], Path | None]:
     """Checkpoints then baselines as methods; without checkpoints, the shipped reference model if any.
 
-    Each checkpoint gives one to three methods (``model_methods``: ``refine``, ``device``,
-    ``precision``, ``backend``, ``fast``, ``track``, ``batch_size``); with ``track``, the dense baselines' tracking
-    methods follow the baselines.
+    Each checkpoint gives one to three methods (:func:`model_methods`, as ``run`` says); with
+    ``run.track``, the dense baselines' tracking methods follow the baselines.
 
     Returns:
         ``(methods, reference)``: ``reference`` is the shipped checkpoint when it was added, else None.
         A checkpoint whose stem is already taken is named by its path without suffix.
     """
-    options = {"precision": precision, "backend": backend, "fast": fast, "track": track, "batch_size": batch_size}
     reference = None if models else reference_checkpoint()
     methods: list[Method] = []
     if reference is not None:
-        methods += model_methods(reference, device, "reference", refine, **options)
+        methods += model_methods(reference, "reference", run)
     paths = [resolve_checkpoint(p) for p in models]
     for i, path in enumerate(paths):
         if path.resolve() in {q.resolve() for q in paths[:i]}:
@@ -287,9 +282,9 @@ def resolve_methods(
             reference = path
         taken = {m.name for m in methods} | set(baselines)
         name = path.stem if path.stem not in taken else str(path.with_suffix(""))
-        methods += model_methods(path, device, name, refine, **options)
+        methods += model_methods(path, name, run)
     methods += [baseline_method(name, equalize) for name in baselines]
-    if track:
+    if run.track:
         methods += [m for m in (baseline_track_method(name, equalize) for name in baselines) if m is not None]
     return methods, reference
 
@@ -367,9 +362,8 @@ def run_bench(
             indices = sample_indices(len(reader), limit)
         if not indices:
             raise ProjregError(f"--data {data}: the dataset has no samples")
-        methods, reference = resolve_methods(models, baselines, equalize=equalize, device=device, refine=refine,
-                                             precision=precision, backend=backend, fast=fast, track=track,
-                                             batch_size=batch_size)  # fmt: skip
+        run = ModelRun(refine, device, precision, backend, fast, track, batch_size)
+        methods, reference = resolve_methods(models, baselines, run, equalize)
         methods += list(extra_methods)
         if not methods:
             raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")

@@ -7,7 +7,7 @@ import torch
 from typer.testing import CliRunner
 
 from projreg import ProjregError
-from projreg.bench import model_methods
+from projreg.bench import ModelRun, model_methods
 from projreg.checkpoint import load_model
 from projreg.cli import app
 from projreg.evaluate import predict_flow
@@ -91,7 +91,7 @@ def test_predict_folder_mode_in_batches_writes_what_one_by_one_writes(tiny_ckpt,
 def test_the_fast_path_is_the_small_network_then_one_refinement_candidate(tiny_ckpt, pairs):
     img0, img1 = pairs[2]
     big0, big1 = (cv2.resize(i, (384, 256), interpolation=cv2.INTER_LINEAR) for i in (img0, img1))
-    (method,) = model_methods(tiny_ckpt, CPU, "tiny", "on", fast=True)
+    (method,) = model_methods(tiny_ckpt, "tiny", ModelRun(device=CPU, fast=True))
     assert method.name == "tiny-fast"
     pred = method.predict(big0, big1)
     net = TorchNetwork(load_model(tiny_ckpt, CPU), CPU)
