@@ -177,7 +177,7 @@ def response(kind: str, linear: np.ndarray) -> np.ndarray:
         out = np.clip(linear, 0, 1) ** (1 / 2.2)
     elif kind == "s-curve":
         out = 1 / (1 + np.exp(-6 * (np.clip(linear, 0, 1.2) ** 0.6 - 0.5)))
-        out = (out - out.min()) / max(float(out.max() - out.min()), 1e-6) if out.size else out
+        out = (out - out.min()) / max(float(out.max() - out.min()), 1e-6)
     elif kind == "linear":
         out = np.clip(1.3 * linear, 0, 1)  # over-exposed: highlights clip
     else:

@@ -569,6 +569,8 @@ class SplineDesign:
         dx = np.diff(np.eye(kx), 2, axis=0)
         D = np.concatenate([np.kron(dy, np.eye(kx)), np.kron(np.eye(ky), dx)])  # [M, K]
         self.penalty = D.T @ D  # [K, K]
+        for a in (self.By, self.Bx, self.by, self.bx, self.byy, self.bxx, self.penalty):
+            a.flags.writeable = False  # shared between callers by spline_design's cache
 
     def samples(self, field: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The field's ``(h', w', 2)`` samples (non-finite ones at weight 0) and their ``(h', w')`` weights."""
