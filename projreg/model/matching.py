@@ -197,10 +197,10 @@ def local_correlation_softmax(f0: torch.Tensor, f1: torch.Tensor, radius: int) -
 
     Convention: flow img0 -> img1 in pixels of this map.
     """
-    prob = window_softmax(local_window_scores(f0, f1, radius))  # [B, K, H, W]
-    offsets = window_offsets(radius, device=f0.device, dtype=f0.dtype)  # [K, 2]
-    flow = torch.einsum("bkhw,kd->bdhw", prob, offsets)  # [B, 2, H, W]
-    return flow, prob
+    prob = torch.softmax(local_window_scores(f0, f1, radius).permute(0, 2, 3, 1), dim=-1)  # [B, H, W, K]
+    offsets = window_offsets(radius, device=f0.device, dtype=prob.dtype)  # [K, 2]
+    flow = torch.matmul(prob, offsets).permute(0, 3, 1, 2)  # [B, 2, H, W]
+    return flow, prob.permute(0, 3, 1, 2)
 
 
 def flow_warp(feature: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
@@ -255,11 +255,14 @@ def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torc
     f = factor
     if mask.shape != (b, 9 * f * f, h, w):
         raise ProjregError(f"mask shape {tuple(mask.shape)} != {(b, 9 * f * f, h, w)}")
-    weights = torch.softmax(mask.view(b, 1, 9, f, f, h, w), dim=2)  # [B, 1, 9, f, f, h, w]
+    # the softmax written out, normalised after the sum: onnxruntime's Softmax on a middle axis (or a
+    # transpose to put the 9 last) took 8-20 ms of a 384 x 512 pair's 236 (docs/benchmarks.md, session 10)
+    logits = mask.view(b, 1, 9, f * f, h * w)
+    e = torch.exp(logits - logits.amax(dim=2, keepdim=True))  # [B, 1, 9, f*f, h*w]
     padded = F.pad(f * flow, (1, 1, 1, 1), mode="replicate")  # [B, 2, h+2, w+2]
-    neigh = F.unfold(padded, kernel_size=3).view(b, 2, 9, 1, 1, h, w)  # [B, 2, 9, 1, 1, h, w]
-    up = (weights * neigh).sum(dim=2)  # [B, 2, f, f, h, w]
-    return up.permute(0, 1, 4, 2, 5, 3).reshape(b, 2, h * f, w * f)
+    neigh = F.unfold(padded, kernel_size=3).view(b, 2, 9, 1, h * w)  # [B, 2, 9, 1, h*w]
+    up = (e * neigh).sum(dim=2) / e.sum(dim=2)  # [B, 2, f*f, h*w]
+    return up.view(b, 2, f, f, h, w).permute(0, 1, 4, 2, 5, 3).reshape(b, 2, h * f, w * f)
 
 
 class ConvexUpsampler(nn.Module):

@@ -122,7 +122,10 @@ def window_attention(
     if shifted:
         allowed = shifted_window_mask(h, w, num_splits, device=q.device)  # [s*s, T, T]
         t = allowed.shape[-1]
-        scores.view(b, -1, t, t).masked_fill_(~allowed, float("-inf"))
+        # an additive bias rather than masked_fill (onnxruntime's Where took 5-9 ms a layer): -1e9 in
+        # float32 (-inf once cast to half) sends exp() to exactly 0, as -inf does
+        bias = (~allowed).to(torch.float32).mul(-1e9).to(scores.dtype)  # [s*s, T, T]
+        scores = (scores.view(b, -1, t, t) + bias).view(-1, t, t)
     msg = torch.matmul(torch.softmax(scores, dim=-1), vw)  # [B*s*s, T, C]
     msg = merge_windows(msg, num_splits, h, w)  # [B, H, W, C]
     if shifted:
