@@ -100,6 +100,9 @@ def train(
                                                         show_default=False)] = False,
     resume: Annotated[bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly (default off).",
                                          show_default=False)] = False,
+    init: Annotated[str | None, typer.Option(help="Start from this checkpoint's weights (`reference`: the "
+                                                  "shipped model) with a fresh optimizer and schedule: "
+                                                  "fine-tuning.", metavar="CKPT|reference")] = None,
     quiet: Quiet = False,
 ) -> None:
     """Train the registration network on projsynth shards."""
@@ -116,7 +119,7 @@ def train(
                           workers=workers, crop=_parse_crop(crop), val_every=val_every, val_samples=val_samples,
                           ckpt_every=ckpt_every,
                           log_every=log_every, amp=amp, compile=compile,
-                          activation_checkpointing=activation_checkpointing)  # fmt: skip
+                          activation_checkpointing=activation_checkpointing, init=init)  # fmt: skip
         with Bar("train", quiet, unit="step") as bar, _ValBar(quiet) as val_bar:
             def progress(step: int, loss: float) -> None:
                 bar.done(step, steps)

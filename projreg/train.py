@@ -38,7 +38,7 @@ from projsynth import ProjsynthError
 from projsynth.flowio import write_atomic
 
 from . import ProjregError, __version__
-from .checkpoint import atomic_save, load_checkpoint
+from .checkpoint import atomic_save, load_checkpoint, require_model, resolve_checkpoint
 from .data import Augment, ShardDataset, StreamSampler
 from .evaluate import evaluate
 from .loss import sequence_loss
@@ -73,6 +73,7 @@ class TrainConfig:
     compile: bool = False
     activation_checkpointing: bool = False  # on: ~15% slower steps, less memory (small, 256x320, batch 8:
     # 2.9 instead of 4.0 GiB peak RSS on the CPU); for large crops or batches
+    init: str | None = None  # a checkpoint (or "reference") whose weights start the run: a fine-tune
 
     def validate(self) -> None:
         checks = [(self.steps >= 1, "--steps must be >= 1"), (self.batch_size >= 1, "--batch-size must be >= 1"),
@@ -89,6 +90,19 @@ class TrainConfig:
         for ok, msg in checks:
             if not ok:
                 raise ProjregError(msg)
+
+
+def initial_weights(spec: str, model: SSJMFlow) -> dict:
+    """The weights of checkpoint ``spec`` (``reference``: the shipped model) for ``model``, which must
+    be the same architecture; only the weights are taken (a fresh optimizer and schedule follow)."""
+    path = resolve_checkpoint(spec)
+    ckpt = require_model(load_checkpoint(path), path)
+    if ckpt["model_config"] != model.config:
+        diff = sorted(k for k in {*ckpt["model_config"], *model.config}
+                      if ckpt["model_config"].get(k) != model.config.get(k))  # fmt: skip
+        raise ProjregError(f"--init {spec}: its network differs from --model's in {', '.join(diff)}; "
+                           "pass the --model (and --no-ssjm) it was trained with")  # fmt: skip
+    return ckpt["model"]
 
 
 def _next_batch(batches) -> dict:
@@ -197,6 +211,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = _schedule(opt, cfg)
     step, best = 0, float("inf")
+    if cfg.init is not None and not resume:  # on resume the weights come from last.pt
+        model.load_state_dict(initial_weights(cfg.init, model))
     if resume:
         ck = load_checkpoint(last_path)
         missing = [k for k in _RESUME_KEYS if not isinstance(ck, dict) or k not in ck]
@@ -208,7 +224,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
                             ("warmup_steps", "--warmup-steps"), ("lr", "--lr"), ("batch_size", "--batch-size"),
                             ("seed", "--seed"), ("data", "--data"), ("crop", "--crop"), ("gamma", "gamma"),
                             ("weight_decay", "weight decay"), ("grad_clip", "gradient clipping"),
-                            ("amp", "--amp")):  # fmt: skip
+                            ("amp", "--amp"), ("init", "--init")):  # fmt: skip
             if _plain(old.get(key), key) != _plain(getattr(cfg, key), key):
                 raise ProjregError(f"--resume: {last_path} was trained with {option} {old.get(key)}, not "
                                    f"{getattr(cfg, key)}; resume with the same value")  # fmt: skip

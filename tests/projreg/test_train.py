@@ -282,3 +282,25 @@ def test_checkpoint_whose_weights_are_unusable_is_one_line(tiny_ckpt, tmp_path, 
     line = one_line_error(result, bad, name)
     assert ("non-finite" in line) == (damage == "nan weight")
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_init_starts_from_a_checkpoints_weights_with_a_fresh_schedule(tiny_train, tiny_ckpt, tmp_path):
+    start = load_checkpoint(tiny_ckpt)["model"]
+    train(_cfg(tiny_train, tmp_path / "ft", steps=1, lr=1e-12, init=str(tiny_ckpt)))
+    ck = load_checkpoint(tmp_path / "ft" / "checkpoints" / "last.pt")
+    assert ck["step"] == 1 and ck["train_config"]["init"] == str(tiny_ckpt)
+    for name, value in start.items():  # one step at lr 1e-12 from the init, not from a seeded initialisation
+        assert torch.allclose(ck["model"][name].float(), value.float(), atol=1e-6), name
+    fresh = load_checkpoint(tiny_ckpt)["model"]
+    train(_cfg(tiny_train, tmp_path / "seeded", steps=1, lr=1e-12, seed=11))
+    seeded = load_checkpoint(tmp_path / "seeded" / "checkpoints" / "last.pt")["model"]
+    assert any(not torch.allclose(seeded[k].float(), fresh[k].float(), atol=1e-3) for k in fresh)
+
+
+def test_init_of_another_architecture_or_a_changed_init_on_resume_is_refused(tiny_train, tiny_ckpt, tmp_path):
+    with pytest.raises(ProjregError, match=r"--init .*differs from --model's in use_ssjm"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=1, use_ssjm=False, init=str(tiny_ckpt)))
+    assert not (tmp_path / "r").exists()  # nothing written
+    train(_cfg(tiny_train, tmp_path / "r", steps=1, init=str(tiny_ckpt)))
+    with pytest.raises(ProjregError, match="--init"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=2), resume=True)
