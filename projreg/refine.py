@@ -217,7 +217,12 @@ class GeometricRefiner:
         # the network's own flow is fitted everywhere: it carries the network's hypothesis into flat
         # regions too, and the refit below keeps to the textured pixels
         fit = fit_homography(flow, step, cfg.ransac_px, None, cfg.max_area_ratio, cfg.min_hull)
-        hypotheses = {"network": (None if fit is None else fit[0], flow), "identity": (np.eye(3), np.zeros_like(flow))}
+        # the network's start is never dropped: a homography too bent to trust as an answer (strong lens
+        # distortion) still starts a refinement that verifies what it finds; an affine fit after that
+        start = fit or fit_homography(flow, step, cfg.ransac_px, None, math.inf, cfg.min_hull)
+        start = start or fit_affine(flow, step, cfg.ransac_px, cfg.min_hull)
+        hypotheses = {"network": (None if start is None else start[0], flow)}
+        hypotheses["identity"] = (np.eye(3), np.zeros_like(flow))
         if not (identity and cfg.identity_pass) and fit is not None:
             del hypotheses["identity"]
         if identity and self._sift is not None:
@@ -394,26 +399,56 @@ def fit_homography(
         or flips orientation: ``area_ratio``), or when the hull covers less than ``min_hull`` of it.
     """
     h, w = flow.shape[:2]
+    src, dst = _grid_matches(flow, step, mask)
+    if len(src) < 8:
+        return None
+    cv2.setRNGSeed(0)
+    H, inl = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, threshold, maxIters=2000, confidence=0.999)
+    if H is None or inl is None or inl.sum() < 8 or not proper_homography(H, h, w):
+        return None
+    if not area_ratio(H, h, w) <= max_area_ratio:
+        return None
+    return _with_hull(H, src[inl.ravel() > 0], h, w, min_hull)
+
+
+Fit = tuple[np.ndarray, np.ndarray] | None  # (3 x 3 matrix, bool (H, W) hull of its inliers), or None
+
+
+def fit_affine(flow: np.ndarray, step: int, threshold: float, min_hull: float = 0.0) -> Fit:
+    """:func:`fit_homography` with an affine model (returned as a 3 x 3 matrix): the start from a flow
+    whose homography is refused as badly conditioned, e.g. under strong lens distortion, where the
+    best homography over the frame bends too much. An affine map's area scale is the same everywhere,
+    so it cannot be ill conditioned that way; it only starts a refinement that measures the rest."""
+    h, w = flow.shape[:2]
+    src, dst = _grid_matches(flow, step, None)
+    if len(src) < 8:
+        return None
+    cv2.setRNGSeed(0)
+    A, inl = cv2.estimateAffine2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=threshold, maxIters=2000)
+    if A is None or inl is None or inl.sum() < 8 or np.linalg.det(A[:, :2]) <= 0:
+        return None
+    return _with_hull(np.vstack([A, [0.0, 0.0, 1.0]]), src[inl.ravel() > 0], h, w, min_hull)
+
+
+def _grid_matches(flow: np.ndarray, step: int, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(src, dst)`` float32 ``[N, 2]``: the ``step`` grid's projected pixels where the flow is finite
+    (and ``mask``, when given, is true) and where the flow sends them."""
+    h, w = flow.shape[:2]
     y, x = np.mgrid[0:h:step, 0:w:step].astype(np.float32)  # [h', w'] each
     src = np.stack([x, y], axis=-1).reshape(-1, 2)  # [N, 2]
     dst = src + flow[::step, ::step].reshape(-1, 2)
     keep = np.isfinite(dst).all(axis=1)
     if mask is not None:
         keep &= mask[::step, ::step].reshape(-1)
-    if keep.sum() < 8:
-        return None
-    cv2.setRNGSeed(0)
-    H, inl = cv2.findHomography(src[keep], dst[keep], cv2.USAC_MAGSAC, threshold, maxIters=2000, confidence=0.999)
-    if H is None or inl is None or inl.sum() < 8 or not proper_homography(H, h, w):
-        return None
-    if not area_ratio(H, h, w) <= max_area_ratio:
-        return None
-    pts = src[keep][inl.ravel() > 0]  # [M, 2] inliers, projected pixels
+    return src[keep], dst[keep]
+
+
+def _with_hull(H: np.ndarray, inliers: np.ndarray, h: int, w: int, min_hull: float) -> Fit:
+    """``(H, hull)`` with the bool ``(h, w)`` convex hull of the inliers, or None when it covers less
+    than ``min_hull`` of the frame."""
     hull = np.zeros((h, w), np.uint8)
-    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(pts).astype(np.int32)), 1)
-    if hull.mean() < min_hull:
-        return None
-    return H, hull > 0
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(inliers).astype(np.int32)), 1)
+    return (H, hull > 0) if hull.mean() >= min_hull else None
 
 
 def area_ratio(H: np.ndarray, h: int, w: int) -> float:

@@ -20,6 +20,7 @@ from projreg.refine import (
     bound_outside,
     bspline_basis,
     compose,
+    fit_affine,
     fit_bspline,
     fit_detail,
     fit_homography,
@@ -351,6 +352,32 @@ def test_content_on_one_side_is_not_extrapolated_across_the_frame(picture):
     assert claimed.sum() > 0.6 * (valid & textured).sum()
     assert err[claimed].mean() < 1.0, err[claimed].mean()
     assert float(info.confidence[:, 160:].max()) < 0.5
+
+
+def test_a_homography_too_bent_to_answer_still_starts_the_network_hypothesis(picture):
+    """A strong keystone (area scale 8x across the frame, over the 6x guard) seen through a network
+    flow 1.5 px off: its homography may not be the answer, but the refinement must start from it
+    (dropping it left the identity, 44 px off, on a lens pair of the seed-4242 test split)."""
+    h, w = picture.shape[:2]
+    H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.004, 0.0, 1.0]])
+    assert area_ratio(H, h, w) > RefineConfig().max_area_ratio
+    captured = cv2.warpPerspective(picture, H, (w, h), flags=cv2.INTER_LINEAR)
+    gt = homography_flow(H, h, w)
+    net = gt + np.random.default_rng(3).normal(0, 1.5, gt.shape).astype(np.float32)
+    pred, info = GeometricRefiner().predict_info(picture, captured, net)
+    assert info.hypothesis == "network" and "network/normalised" in info.scores
+    err = np.linalg.norm(pred.flow - gt, axis=-1)
+    assert np.median(err) < 0.5 and err[pred.claimed].mean() < 0.5, (np.median(err), err[pred.claimed].mean())
+
+
+def test_fit_affine_recovers_an_affine_flow_as_a_3x3_matrix():
+    A = np.array([[1.1, 0.05, 7.0], [-0.03, 0.95, -4.0], [0.0, 0.0, 1.0]])
+    flow = homography_flow(A, 96, 128)
+    fit = fit_affine(flow, 8, 1.0)
+    assert fit is not None and fit[1].mean() > 0.8
+    np.testing.assert_allclose(fit[0], A, atol=1e-4)
+    mirror = homography_flow(np.array([[-1.0, 0.0, 127.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]), 96, 128)
+    assert fit_affine(mirror, 8, 1.0) is None  # a camera cannot see the image mirrored
 
 
 def test_an_almost_blank_picture_is_reported_not_registered(picture):
