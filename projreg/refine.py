@@ -216,10 +216,10 @@ class GeometricRefiner:
         support = near(textured, cfg.support_margin * max(h, w))
         # the network's own flow is fitted everywhere: it carries the network's hypothesis into flat
         # regions too, and the refit below keeps to the textured pixels
-        fit = fit_homography(flow, step, cfg.ransac_px, None, cfg.max_area_ratio, cfg.min_hull)
+        start = fit_homography(flow, step, cfg.ransac_px, None, math.inf, cfg.min_hull)
+        fit = start if start is not None and area_ratio(start[0], h, w) <= cfg.max_area_ratio else None
         # the network's start is never dropped: a homography too bent to trust as an answer (strong lens
-        # distortion) still starts a refinement that verifies what it finds; an affine fit after that
-        start = fit or fit_homography(flow, step, cfg.ransac_px, None, math.inf, cfg.min_hull)
+        # distortion) still starts a refinement that verifies what it finds; an affine fit when none is found
         start = start or fit_affine(flow, step, cfg.ransac_px, cfg.min_hull)
         hypotheses = {"network": (None if start is None else start[0], flow)}
         hypotheses["identity"] = (np.eye(3), np.zeros_like(flow))
@@ -378,6 +378,9 @@ def fit_step(h: int, w: int, points: int) -> int:
     return max(1, math.ceil(math.sqrt(h * w / points)))
 
 
+Fit = tuple[np.ndarray, np.ndarray] | None  # (3 x 3 matrix, bool (H, W) hull of its inliers), or None
+
+
 def fit_homography(
     flow: np.ndarray,
     step: int,
@@ -385,7 +388,7 @@ def fit_homography(
     mask: np.ndarray | None = None,
     max_area_ratio: float = math.inf,
     min_hull: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray] | None:
+) -> Fit:
     """Robust homography (projected -> captured pixels) of a flow's correspondences on a ``step`` grid.
 
     MAGSAC++ with ``threshold`` px, OpenCV's RNG seeded first so the result is reproducible, on the
@@ -409,9 +412,6 @@ def fit_homography(
     if not area_ratio(H, h, w) <= max_area_ratio:
         return None
     return _with_hull(H, src[inl.ravel() > 0], h, w, min_hull)
-
-
-Fit = tuple[np.ndarray, np.ndarray] | None  # (3 x 3 matrix, bool (H, W) hull of its inliers), or None
 
 
 def fit_affine(flow: np.ndarray, step: int, threshold: float, min_hull: float = 0.0) -> Fit:

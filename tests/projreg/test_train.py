@@ -304,3 +304,16 @@ def test_init_of_another_architecture_or_a_changed_init_on_resume_is_refused(tin
     train(_cfg(tiny_train, tmp_path / "r", steps=1, init=str(tiny_ckpt)))
     with pytest.raises(ProjregError, match="--init"):
         train(_cfg(tiny_train, tmp_path / "r", steps=2), resume=True)
+
+
+def test_init_through_the_cli_as_a_user_fine_tunes(tiny_train, tiny_ckpt, tmp_path, one_line_error):
+    args = ["train", "--data", tiny_train, "--steps", "2", "--batch-size", "1", "--workers", "0", "--crop", "none",
+            "--init", tiny_ckpt, "--lr", "1e-4", "--schedule-steps", "2", "--warmup-steps", "1", "-q"]  # fmt: skip
+    run = tmp_path / "ft"
+    result = CliRunner().invoke(app, [str(a) for a in [*args, "--out", run]])
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    assert json.loads((run / "config.json").read_text())["train_config"]["init"] == str(tiny_ckpt)
+    other = tmp_path / "other"
+    result = CliRunner().invoke(app, [str(a) for a in [*args, "--out", other, "--no-ssjm"]])
+    one_line_error(result, "--init", "use_ssjm")
+    assert not other.exists()
