@@ -95,7 +95,10 @@ class TrainConfig:
 def initial_weights(spec: str, model: SSJMFlow) -> dict:
     """The weights of checkpoint ``spec`` (``reference``: the shipped model) for ``model``, which must
     be the same architecture; only the weights are taken (a fresh optimizer and schedule follow)."""
-    path = resolve_checkpoint(spec)
+    try:
+        path = resolve_checkpoint(spec)
+    except ProjregError:
+        raise ProjregError(f"--init {spec}: no shipped reference model here; pass a checkpoint file") from None
     ckpt = require_model(load_checkpoint(path), path)
     if ckpt["model_config"] != model.config:
         diff = sorted(k for k in {*ckpt["model_config"], *model.config}

@@ -317,3 +317,10 @@ def test_init_through_the_cli_as_a_user_fine_tunes(tiny_train, tiny_ckpt, tmp_pa
     result = CliRunner().invoke(app, [str(a) for a in [*args, "--out", other, "--no-ssjm"]])
     one_line_error(result, "--init", "use_ssjm")
     assert not other.exists()
+
+
+def test_init_reference_without_a_shipped_model_names_the_option(tiny_train, tmp_path, monkeypatch):
+    monkeypatch.setattr("projreg.checkpoint.reference_checkpoint", lambda: None)
+    with pytest.raises(ProjregError, match="--init reference: no shipped reference model"):
+        train(_cfg(tiny_train, tmp_path / "r", steps=1, init="reference"))
+    assert not (tmp_path / "r").exists()
