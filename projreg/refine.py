@@ -99,6 +99,8 @@ class RefineConfig:
     detail_grid: tuple[int, int] | None = (14, 11)
     detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
     periodic_peak: float = 0.85
+    albedo_window: int = 15
+    albedo_check_window: int = 31
     max_side: int | None = None
 
     def __post_init__(self) -> None:
@@ -109,6 +111,9 @@ class RefineConfig:
                 raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
         if self.max_side is not None and self.max_side < MIN_SIDE:
             raise ProjregError(f"refine max_side must be >= {MIN_SIDE}, got {self.max_side}")
+        for name in ("albedo_window", "albedo_check_window"):
+            if getattr(self, name) and (getattr(self, name) < 3 or getattr(self, name) % 2 == 0):
+                raise ProjregError(f"refine {name} must be 0 (off) or an odd number >= 3, got {getattr(self, name)}")
         if not self.contrast_sigma >= 0:
             raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
 
@@ -131,6 +136,8 @@ FAST_REFINE = RefineConfig(
     fit_points=3072,
     detail_grid=None,
     periodic_peak=1.0,
+    albedo_window=0,
+    albedo_check_window=0,
 )
 
 
@@ -211,6 +218,8 @@ class GeometricRefiner:
         images = {"normalised": normalised}
         if cfg.plain_pass and cfg.contrast_sigma > 0:
             images["plain"] = plain
+        if cfg.albedo_window:
+            images["albedo"] = plain  # the residual divides the wall's reflectance out (divide_albedo)
         step = fit_step(h, w, cfg.fit_points)
         textured = evidence >= 0.5
         support = near(textured, cfg.support_margin * max(h, w))
@@ -227,30 +236,51 @@ class GeometricRefiner:
             del hypotheses["identity"]
         if identity and self._sift is not None:
             hypotheses.update(self._sift_hypothesis(projected, captured, step))
-        cands, scores = {}, {}
-        for kind, (gray0, gray1) in images.items():
-            weight = texture_weight(gray0, cfg.texture_floor if kind == "plain" else 0.0)
-            for name, (H, prior) in hypotheses.items():
-                if H is None:
-                    continue
-                key = f"{name}/{kind}"
-                cands[key] = self.hypothesis(gray0, gray1, H, weight, step, textured, support, prior)[2]
-                scores[key] = alignment_score(*normalised, cands[key], cfg.ncc_sigma, evidence)
+        cands, scores = self._candidates(images, hypotheses, plain, evidence, step, textured, support)
         best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
         # a repeating pattern: a flow off by one period passes every check (computed once per pair)
         repeating = periodicity(normalised[0]) >= cfg.periodic_peak if cfg.periodic_peak < 1 else None
-        conf = self.confidence(normalised, cands, scores, best, evidence, repeating)
+        conf = self.confidence(normalised, cands, scores, best, evidence, repeating, plain)
         net = [k for k in scores if k.startswith("network/")]
         if (conf >= CONFIDENT).mean() < cfg.min_evidence and net and best not in net:
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than the identity's
             best = max(net, key=lambda k: scores[k])
-            conf = self.confidence(normalised, cands, scores, best, evidence, repeating)
+            conf = self.confidence(normalised, cands, scores, best, evidence, repeating, plain)
         claimed = conf >= CONFIDENT
         name, kind = best.split("/")
         why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
         pred = Prediction(cands[best], claimed, not why, why)
         return pred, RefineInfo(name, kind, scores, conf, share)
+
+    def _candidates(
+        self,
+        images: dict[str, tuple[np.ndarray, np.ndarray]],
+        hypotheses: dict[str, tuple[np.ndarray | None, np.ndarray]],
+        plain: tuple[np.ndarray, np.ndarray],
+        evidence: np.ndarray,
+        step: int,
+        textured: np.ndarray,
+        support: np.ndarray,
+    ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """Steps 2-4 from every hypothesis on every kind of images: the refined flows and their selection
+        scores, keyed ``"HYPOTHESIS/IMAGES"`` in the order tried. The albedo images start from the
+        network's and SIFT's homographies only: from the identity they changed nothing on the validation
+        split and cost a fifth more time (docs/model.md, "Textured walls")."""
+        cfg = self.config
+        normalised = images["normalised"]
+        cands, scores = {}, {}
+        for kind, (gray0, gray1) in images.items():
+            weight = texture_weight(gray0, 0.0 if kind == "normalised" else cfg.texture_floor)
+            albedo = cfg.albedo_window if kind == "albedo" else 0
+            for name, (H, prior) in hypotheses.items():
+                if H is None or (albedo and name == "identity"):
+                    continue
+                key = f"{name}/{kind}"
+                cands[key] = self.hypothesis(gray0, gray1, H, weight, step, textured, support, prior, albedo)[2]
+                seen = self.seen(cands[key], normalised, plain)
+                scores[key] = weighted_ncc(normalised[0], seen, cfg.ncc_sigma, evidence)
+        return cands, scores
 
     def _predict_shrunk(
         self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool
@@ -283,6 +313,7 @@ class GeometricRefiner:
         textured: np.ndarray,
         support: np.ndarray,
         prior: np.ndarray,
+        albedo: int = 0,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain),
         with the guards: the refit uses ``textured`` pixels only and must be well conditioned, and
@@ -298,11 +329,11 @@ class GeometricRefiner:
         cfg = self.config
         h, w = gray0.shape
         base = homography_flow(H, h, w)  # [H, W, 2]
-        full = compose(base, self._residual(gray0, gray1, base))
+        full = compose(base, self._residual(gray0, gray1, base, albedo))
         fit = fit_homography(full, step, cfg.refit_px, textured, cfg.max_area_ratio, cfg.min_hull)
         if fit is not None:
             base = homography_flow(fit[0], h, w)
-        residual = self._residual(gray0, gray1, base)  # [H, W, 2], in the projector frame
+        residual = self._residual(gray0, gray1, base, albedo)  # [H, W, 2], in the projector frame
         return base, residual, self.surface(base, residual, weight, step, support, prior)
 
     def surface(
@@ -334,14 +365,15 @@ class GeometricRefiner:
         best: str,
         evidence: np.ndarray,
         repeating: np.ndarray | None = None,
+        plain: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`projreg.confidence.pixel_confidence`):
         texture, local NCC, forward-backward residual and agreement with the close runners-up; 0 where
         ``repeating`` (bool ``(H, W)``: the projected image repeats itself, :func:`periodicity`)."""
         cfg = self.config
-        gray0, gray1 = normalised
+        gray0 = normalised[0]
         flow = cands[best]
-        warped = warp_back(gray1, flow)
+        warped = self.seen(flow, normalised, plain)
         fwd = self._dis.calc(gray0, warped, None)  # what is left to move: ~0 where the flow holds
         bwd = self._dis.calc(warped, gray0, None)
         fb = np.maximum(np.linalg.norm(fwd, axis=-1), np.linalg.norm(compose(bwd, fwd), axis=-1))  # [H, W]
@@ -353,9 +385,29 @@ class GeometricRefiner:
         conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
         return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
 
-    def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray) -> np.ndarray:
-        """DIS flow from the projected image to the captured image warped back by ``base``."""
-        return self._dis.calc(gray0, warp_back(gray1, base), None)
+    def seen(
+        self, flow: np.ndarray, normalised: tuple[np.ndarray, np.ndarray], plain: tuple[np.ndarray, np.ndarray] | None
+    ) -> np.ndarray:
+        """The captured image warped back into the projector frame by ``flow``, as the selection and the
+        checks compare it with the projected one: normalised, and with ``albedo_check_window`` (and the
+        ``plain`` images given) the wall's reflectance divided out first (:func:`divide_albedo`, over a
+        window wide enough not to absorb a misalignment; docs/model.md, "Textured walls")."""
+        cfg = self.config
+        if plain is None or not cfg.albedo_check_window:
+            return warp_back(normalised[1], flow)
+        warped = divide_albedo(plain[0], warp_back(plain[1], flow), cfg.albedo_check_window)
+        return normalize_contrast(warped, cfg.contrast_sigma)
+
+    def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray, albedo: int = 0) -> np.ndarray:
+        """DIS flow from the projected image to the captured image warped back by ``base``; with an
+        ``albedo`` window, ``gray0``/``gray1`` are the plain images and the warped one is divided by the
+        wall's estimated reflectance (:func:`divide_albedo`) before both are normalised."""
+        warped = warp_back(gray1, base)
+        if not albedo:
+            return self._dis.calc(gray0, warped, None)
+        sigma = self.config.contrast_sigma
+        return self._dis.calc(normalize_contrast(gray0, sigma),
+                              normalize_contrast(divide_albedo(gray0, warped, albedo), sigma), None)  # fmt: skip
 
 
 def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
@@ -371,6 +423,21 @@ def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
     var = cv2.GaussianBlur(g * g, (0, 0), sigma) - mean * mean
     z = (g - mean) / np.sqrt(np.maximum(var, 4.0))
     return np.clip(128 + 40 * z, 0, 255).astype(np.uint8)
+
+
+def divide_albedo(gray0: np.ndarray, warped: np.ndarray, window: int) -> np.ndarray:
+    """``warped`` (the captured gray image in the projector frame) divided by the wall's reflectance.
+
+    A textured wall (paint, brick, plaster) multiplies the projected light; through a power-law camera
+    response the captured image is still the projected one times a reflectance map that carries the
+    wall's own edges, which contrast normalisation keeps and DIS follows. The reflectance is estimated
+    as the median, over a ``window`` x ``window`` square, of ``log(warped + 8) - log(gray0 + 8)``: a
+    wall's stripes or bricks wider than half the window survive the median, the texture-scale
+    structure a small misalignment leaves in the ratio does not. Returns float32 ``(H, W)``.
+    """
+    ratio = np.log(warped.astype(np.float32) + 8.0) - np.log(gray0.astype(np.float32) + 8.0)
+    coded = np.clip(np.round(128 + 40 * ratio), 0, 255).astype(np.uint8)  # OpenCV's large medians take uint8
+    return warped / np.exp((cv2.medianBlur(coded, window).astype(np.float32) - 128) / 40)
 
 
 def fit_step(h: int, w: int, points: int) -> int:
@@ -772,7 +839,12 @@ def alignment_score(
     and misaligns the rest of the texture scores by the whole texture, not by a median that flat
     regions (NCC about 0 under any flow) dominate.
     """
-    ncc = local_ncc(gray0, warp_back(gray1, flow), sigma)
+    return weighted_ncc(gray0, warp_back(gray1, flow), sigma, weight)
+
+
+def weighted_ncc(gray0: np.ndarray, warped: np.ndarray, sigma: float, weight: np.ndarray | None) -> float:
+    """:func:`alignment_score` of an image already warped into the projector frame."""
+    ncc = local_ncc(gray0, warped, sigma)
     if weight is None:
         return float(ncc.mean())
     return float((ncc * weight).sum() / max(float(weight.sum()), 1e-6))

@@ -20,6 +20,7 @@ from projreg.refine import (
     bound_outside,
     bspline_basis,
     compose,
+    divide_albedo,
     fit_affine,
     fit_bspline,
     fit_detail,
@@ -211,7 +212,9 @@ def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
         name = s["params"]["transform"]["name"]
         assert _epe(flow, s) < 0.5 and _epe(flow, s) < _epe(coarse, s) / 5, (name, _epe(flow, s), _epe(coarse, s))
         tried = {f"{h}/{i}" for h in ("network", "identity", "sift") for i in ("normalised", "plain")}
-        assert tried - {"sift/normalised", "sift/plain"} <= set(info.scores) <= tried  # SIFT: when it matches
+        tried |= {"network/albedo", "sift/albedo"}  # the albedo images: not from the identity
+        sift = {"sift/normalised", "sift/plain", "sift/albedo"}
+        assert tried - sift <= set(info.scores) <= tried  # SIFT: when it matches
 
 
 def test_refine_falls_back_to_the_identity_when_the_network_is_lost(samples):
@@ -271,7 +274,7 @@ def test_the_network_hypothesis_carries_large_displacements(samples):
     q = np.stack([x, y], axis=-1) + gt
     s = {"flow": gt, "valid": (q[..., 0] >= 0) & (q[..., 0] <= w - 1) & (q[..., 1] >= 0) & (q[..., 1] <= h - 1)}
     coarse = _coarse(s, np.random.default_rng(5))
-    flow, info = GeometricRefiner().refine(img0, img1, coarse)
+    flow, info = GeometricRefiner(RefineConfig(sift_pass=False)).refine(img0, img1, coarse)  # SIFT finds it too
     assert info.hypothesis == "network", info
     identity = max(info.scores["identity/normalised"], info.scores["identity/plain"])
     assert info.scores[f"network/{info.images}"] > identity + 0.1
@@ -295,8 +298,9 @@ def test_contrast_normalisation_removes_local_gain_and_offset():
 BEND_H = np.array([[0.93, 0.05, 12.0], [-0.03, 0.96, 8.0], [2e-4, -1e-4, 1.0]])
 
 
-def _bent_pair(picture, amp=3.0, period=150.0, seed=0):
-    """``(projected, captured, flow, valid)``: forward map ``q = H p`` then ``q + amp * sin(2 pi q / period)``."""
+def _bent_pair(picture, amp=3.0, period=150.0, seed=0, wall=None):
+    """``(projected, captured, flow, valid)``: forward map ``q = H p`` then ``q + amp * sin(2 pi q / period)``;
+    ``wall``: the wall's reflectance in the camera frame, float ``(H, W)`` (None: uniform)."""
     h, w = picture.shape[:2]
     k = 2 * np.pi / period
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -314,7 +318,8 @@ def _bent_pair(picture, amp=3.0, period=150.0, seed=0):
     src = (src[..., :2] / src[..., 2:]).astype(np.float32)
     lit = (src[..., 0] >= 0) & (src[..., 0] <= w - 1) & (src[..., 1] >= 0) & (src[..., 1] <= h - 1)
     cap = cv2.remap(picture.astype(np.float32), src[..., 0], src[..., 1], cv2.INTER_LINEAR)
-    cap = 255 * (np.where(lit[..., None], cap, 6.0) / 255) ** (1 / 2.2)
+    cap = np.where(lit[..., None], cap, 6.0) * (1.0 if wall is None else wall[..., None])
+    cap = 255 * (cap / 255) ** (1 / 2.2)
     cap = cap + np.random.default_rng(seed).normal(0, 1.5, cap.shape)
     valid = (fwd[..., 0] >= 0) & (fwd[..., 0] <= w - 1) & (fwd[..., 1] >= 0) & (fwd[..., 1] <= h - 1)
     return picture, np.clip(cap, 0, 255).astype(np.uint8), (fwd - p).astype(np.float32), valid
@@ -413,6 +418,42 @@ def test_a_fully_textured_bent_pair_is_claimed_almost_everywhere(picture):
     claimed = pred.claimed & valid
     assert pred.registered and claimed.sum() > 0.8 * valid.sum(), claimed.sum() / valid.sum()
     assert err[claimed].mean() < 0.6, err[claimed].mean()
+
+
+def test_a_striped_wall_is_divided_out_of_the_residual_and_the_checks():
+    """Stripes painted on the wall (3:1 reflectance, 40 px period, tilted) multiply the projection in the
+    camera frame: DIS follows their edges and the photometric checks refuse correct flows across them."""
+    picture = cv2.resize(render_procedural("natural", "urban", (192, 256), np.random.default_rng(8)), (256, 192))
+    y, x = np.mgrid[0:192, 0:256].astype(np.float32)
+    wall = 0.6 + 0.3 * np.tanh(3 * np.sin(2 * np.pi * (x + 0.3 * y) / 40.0))
+    img0, img1, gt, valid = _bent_pair(picture, seed=8, wall=wall)
+    net = _network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
+    got = {}
+    for name, cfg in (("albedo", RefineConfig()), ("off", RefineConfig(albedo_window=0, albedo_check_window=0))):
+        pred, info = GeometricRefiner(cfg).predict_info(img0, img1, net)
+        err, claimed = np.linalg.norm(pred.flow - gt, axis=-1), pred.claimed & valid
+        got[name] = (err[valid].mean(), claimed.sum() / valid.sum(), err[claimed].mean(), info.images)
+    assert got["albedo"][3] == "albedo" and got["albedo"][0] < 1.0 and got["off"][0] > 2.0, got
+    assert got["albedo"][1] > 0.75 and got["albedo"][1] > got["off"][1] + 0.1 and got["albedo"][2] < 1.0, got
+
+
+def test_divide_albedo_removes_a_wide_reflectance_pattern_and_keeps_a_misalignment():
+    rgb = render_procedural("natural", "urban", (96, 128), np.random.default_rng(4))
+    gray0 = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    x = np.arange(128, dtype=np.float32)[None, :]
+    wall = np.where(np.sin(2 * np.pi * x / 48) > 0, 0.9, 0.35).astype(np.float32) * np.ones((96, 1), np.float32)
+    inner = (slice(16, -16), slice(16, -16))
+
+    def ncc(image):
+        return np.corrcoef(image[inner].ravel(), gray0[inner].ravel())[0, 1]
+
+    striped, shifted = gray0 * wall, np.roll(gray0, 3, axis=1) * wall
+    assert ncc(striped) < 0.7 and ncc(divide_albedo(gray0, striped, 31)) > 0.95  # the stripes are gone
+    assert ncc(divide_albedo(gray0, shifted, 31)) < 0.5  # a 3 px shift is not explained away as reflectance
+    moved = np.roll(gray0, 3, axis=1)  # on a plain wall the division leaves a misalignment as it was
+    assert abs(ncc(divide_albedo(gray0, moved, 31)) - ncc(moved)) < 0.02
+    with pytest.raises(ProjregError, match="albedo_window"):
+        RefineConfig(albedo_window=4)
 
 
 def test_a_grating_matched_one_period_off_is_not_claimed():
