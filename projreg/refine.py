@@ -23,9 +23,13 @@ images:
    bent with a period shorter than the coarse knots, not DIS's noise.
 4. **Selection**: steps 1-3 run from every hypothesis, on the normalised and on the plain gray
    images (normalisation helps under blending and transparency, hurts some large, well-lit
-   motions); each of the four flows is scored by the median local normalised cross-correlation
-   (Gaussian window) between the normalised projected image and the normalised captured image
-   warped back by it; the best score wins (ties: the first tried, the network's on normalised images).
+   motions), and from the network's and SIFT's on the *albedo* images: the plain ones with the
+   wall's reflectance (painted stripes, bricks) divided out of the warped captured image before
+   both are normalised (:func:`divide_albedo`). Each flow is scored by the texture-weighted mean
+   local normalised cross-correlation (Gaussian window) between the normalised projected image and
+   the captured image warped back by it, the wall's reflectance divided out over a wider window
+   (:meth:`GeometricRefiner.seen`); the best score wins (ties: the first tried, the network's on
+   normalised images).
 
 The spline cannot follow a fold or an occlusion edge sharper than its control spacing (a third of the
 frame's width); docs/model.md gives the measured effect of each step.
@@ -71,7 +75,10 @@ class RefineConfig:
     the fine P-spline added to the coarse one where cross-validation says the residual carries finer
     surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
     only); ``periodic_peak``: pixels where the projected image repeats itself (:func:`periodicity` at
-    least this) are not claimed, whatever the checks say (1: no test); ``max_side``:
+    least this) are not claimed, whatever the checks say (1: no test); ``albedo_window``: the median
+    window (odd, px) of the wall's reflectance estimate under the albedo images' residual (0: no such
+    candidates); ``albedo_check_window``: the same for what the selection and the checks compare (0: the
+    normalised captured image as it is; wider, so that it cannot absorb a misalignment); ``max_side``:
     refine the pair shrunk to this longer side and bring the flow and the confidence back to its own
     grid (None: at its own size; the pixel parameters are then in the shrunk pair's pixels).
     """
@@ -119,9 +126,10 @@ class RefineConfig:
 
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate instead of
-# four), without the detail level and the periodicity test, on the pair shrunk to 256 px with the
-# pixel parameters halved (windows, thresholds, fit points for a 384 x 512 pair; its contrast window,
-# 8 px, is half the full-size default before session 9, as measured); docs/benchmarks.md ("Inference latency")
+# eight), without the detail level, the periodicity test and the albedo images, on the pair shrunk to
+# 256 px with the pixel parameters halved (windows, thresholds, fit points for a 384 x 512 pair; its
+# contrast window, 8 px, is half the full-size default before session 9, as measured);
+# docs/benchmarks.md ("Inference latency")
 FAST_REFINE = RefineConfig(
     plain_pass=False,
     identity_pass=False,
