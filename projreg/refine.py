@@ -76,9 +76,9 @@ class RefineConfig:
     surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
     only); ``periodic_peak``: pixels where the projected image repeats itself (:func:`periodicity` at
     least this) are not claimed, whatever the checks say (1: no test); ``albedo_window``: the median
-    window (odd, px) of the wall's reflectance estimate under the albedo images' residual (0: no such
-    candidates); ``albedo_check_window``: the same for what the selection and the checks compare (0: the
-    normalised captured image as it is; wider, so that it cannot absorb a misalignment); ``max_side``:
+    window (odd, px) of the wall's reflectance estimate (:func:`divide_albedo`) under the albedo
+    candidates' residual and in what the selection and the checks compare (0: no albedo candidates,
+    and the checks see the normalised captured image as it is); ``max_side``:
     refine the pair shrunk to this longer side and bring the flow and the confidence back to its own
     grid (None: at its own size; the pixel parameters are then in the shrunk pair's pixels).
     """
@@ -106,8 +106,7 @@ class RefineConfig:
     detail_grid: tuple[int, int] | None = (14, 11)
     detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
     periodic_peak: float = 0.85
-    albedo_window: int = 15
-    albedo_check_window: int = 31
+    albedo_window: int = 31
     max_side: int | None = None
 
     def __post_init__(self) -> None:
@@ -118,9 +117,8 @@ class RefineConfig:
                 raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
         if self.max_side is not None and self.max_side < MIN_SIDE:
             raise ProjregError(f"refine max_side must be >= {MIN_SIDE}, got {self.max_side}")
-        for name in ("albedo_window", "albedo_check_window"):
-            if getattr(self, name) and (getattr(self, name) < 3 or getattr(self, name) % 2 == 0):
-                raise ProjregError(f"refine {name} must be 0 (off) or an odd number >= 3, got {getattr(self, name)}")
+        if self.albedo_window and (self.albedo_window < 3 or self.albedo_window % 2 == 0):
+            raise ProjregError(f"refine albedo_window must be 0 (off) or an odd number >= 3, got {self.albedo_window}")
         if not self.contrast_sigma >= 0:
             raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
 
@@ -145,7 +143,6 @@ FAST_REFINE = RefineConfig(
     detail_grid=None,
     periodic_peak=1.0,
     albedo_window=0,
-    albedo_check_window=0,
 )
 
 
@@ -397,13 +394,13 @@ class GeometricRefiner:
         self, flow: np.ndarray, normalised: tuple[np.ndarray, np.ndarray], plain: tuple[np.ndarray, np.ndarray] | None
     ) -> np.ndarray:
         """The captured image warped back into the projector frame by ``flow``, as the selection and the
-        checks compare it with the projected one: normalised, and with ``albedo_check_window`` (and the
-        ``plain`` images given) the wall's reflectance divided out first (:func:`divide_albedo`, over a
-        window wide enough not to absorb a misalignment; docs/model.md, "Textured walls")."""
+        checks compare it with the projected one: normalised, and with an ``albedo_window`` (and the
+        ``plain`` images given) the wall's reflectance divided out first (:func:`divide_albedo`; docs/model.md,
+        "Textured walls")."""
         cfg = self.config
-        if plain is None or not cfg.albedo_check_window:
+        if plain is None or not cfg.albedo_window:
             return warp_back(normalised[1], flow)
-        warped = divide_albedo(plain[0], warp_back(plain[1], flow), cfg.albedo_check_window)
+        warped = divide_albedo(plain[0], warp_back(plain[1], flow), cfg.albedo_window)
         return normalize_contrast(warped, cfg.contrast_sigma)
 
     def _residual(self, gray0: np.ndarray, gray1: np.ndarray, base: np.ndarray, albedo: int = 0) -> np.ndarray:

@@ -429,7 +429,7 @@ def test_a_striped_wall_is_divided_out_of_the_residual_and_the_checks():
     img0, img1, gt, valid = _bent_pair(picture, seed=8, wall=wall)
     net = _network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
     got = {}
-    for name, cfg in (("albedo", RefineConfig()), ("off", RefineConfig(albedo_window=0, albedo_check_window=0))):
+    for name, cfg in (("albedo", RefineConfig()), ("off", RefineConfig(albedo_window=0))):
         pred, info = GeometricRefiner(cfg).predict_info(img0, img1, net)
         err, claimed = np.linalg.norm(pred.flow - gt, axis=-1), pred.claimed & valid
         got[name] = (err[valid].mean(), claimed.sum() / valid.sum(), err[claimed].mean(), info.images)
