@@ -255,7 +255,9 @@ class GeometricRefiner:
         claimed = conf >= CONFIDENT
         name, kind = best.split("/")
         why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
-        pred = Prediction(cands[best], claimed, not why, why)
+        # a pair reported as not registered claims nothing: a few stray pixels passing the checks are not
+        # a registration the user can rely on (the confidence map in RefineInfo keeps them)
+        pred = Prediction(cands[best], claimed if not why else np.zeros_like(claimed), not why, why)
         return pred, RefineInfo(name, kind, scores, conf, share)
 
     def _candidates(
