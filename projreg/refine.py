@@ -27,7 +27,7 @@ images:
    wall's reflectance (painted stripes, bricks) divided out of the warped captured image before
    both are normalised (:func:`divide_albedo`). Each flow is scored by the texture-weighted mean
    local normalised cross-correlation (Gaussian window) between the normalised projected image and
-   the captured image warped back by it, the wall's reflectance divided out over a wider window
+   the captured image warped back by it, the wall's reflectance divided out the same way
    (:meth:`GeometricRefiner.seen`); the best score wins (ties: the first tried, the network's on
    normalised images).
 
@@ -149,8 +149,8 @@ FAST_REFINE = RefineConfig(
 @dataclass(frozen=True)
 class RefineInfo:
     """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "sift", "none" for a
-    textureless pair or "skipped"), ``images`` ("normalised" or "plain": the gray images the residual
-    was measured on), the selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"``
+    textureless pair or "skipped"), ``images`` ("normalised", "plain" or "albedo": the gray images the
+    residual was measured on), the selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"``
     (texture-weighted mean local NCC, in [-1, 1]), the per-pixel ``confidence`` (float32 ``(H, W)``
     in [0, 1]) and ``evidence``, the share of the frame where the projected image has texture."""
 
@@ -391,6 +391,15 @@ class GeometricRefiner:
         ncc = local_ncc(gray0, warped, cfg.ncc_sigma)
         conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
         return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
+
+    def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
+        """The selection score of ``flow`` on a pair of uint8 RGB images, as :meth:`predict_info` scores its
+        candidates (at the pair's own size): texture-weighted mean local NCC of what :meth:`seen` shows."""
+        cfg = self.config
+        plain = (to_gray(projected), to_gray(captured))
+        normalised = tuple(normalize_contrast(g, cfg.contrast_sigma) for g in plain)
+        evidence = texture_weight(plain[0], cfg.texture_floor)
+        return weighted_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma, evidence)
 
     def seen(
         self, flow: np.ndarray, normalised: tuple[np.ndarray, np.ndarray], plain: tuple[np.ndarray, np.ndarray] | None

@@ -29,9 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .baselines import to_gray
 from .confidence import Prediction, as_prediction
-from .refine import GeometricRefiner, alignment_score, compose, normalize_contrast, texture_weight, warp_back
+from .refine import GeometricRefiner, compose, warp_back
 
 STEPS = ("full", "tracked", "lost")  # how a frame was registered: first frame, from the previous, re-registered
 
@@ -86,12 +85,9 @@ class Tracker:
         return self._done(step, pred)
 
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
-        """The refinement's selection score of ``flow`` on the pair (``refine.alignment_score`` on
-        normalised images, weighted by the projected image's texture)."""
-        rc = self.refiner.config
-        gray0, gray1 = to_gray(projected), to_gray(captured)
-        normalised = [normalize_contrast(g, rc.contrast_sigma) for g in (gray0, gray1)]
-        return alignment_score(*normalised, flow, rc.ncc_sigma, texture_weight(gray0, rc.texture_floor))
+        """The refinement's selection score of ``flow`` on the pair (:meth:`GeometricRefiner.score`), the
+        scale the tracked frames' scores are compared on."""
+        return self.refiner.score(projected, captured, flow)
 
     def _done(self, step: str, pred: Prediction) -> Prediction:
         self.last = step

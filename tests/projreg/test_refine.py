@@ -452,6 +452,16 @@ def test_a_striped_wall_is_divided_out_of_the_residual_and_the_checks():
     assert got["albedo"][1] > 0.75 and got["albedo"][1] > got["off"][1] + 0.1 and got["albedo"][2] < 1.0, got
 
 
+def test_score_is_the_selection_score_of_the_chosen_candidate(picture):
+    """Tracking compares a frame's score with the last full registration's: one scale for both."""
+    img0, img1, gt, valid = _bent_pair(picture)
+    refiner = GeometricRefiner()
+    pred, info = refiner.predict_info(img0, img1, _network_like(gt, valid, np.random.default_rng(2)))
+    chosen = info.scores[f"{info.hypothesis}/{info.images}"]
+    assert refiner.score(img0, img1, pred.flow) == pytest.approx(chosen, abs=1e-6)
+    assert refiner.score(img0, img1, pred.flow + 6.0) < chosen - 0.3
+
+
 def test_divide_albedo_removes_a_wide_reflectance_pattern_and_keeps_a_misalignment():
     rgb = render_procedural("natural", "urban", (96, 128), np.random.default_rng(4))
     gray0 = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
