@@ -322,7 +322,8 @@ class GeometricRefiner:
         prior: np.ndarray,
         albedo: int = 0,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain),
+        """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain;
+        plain with an ``albedo`` window: the residual divides the wall's reflectance out, :meth:`_residual`),
         with the guards: the refit uses ``textured`` pixels only and must be well conditioned, and
         outside ``support`` (farther than ``support_margin`` from any texture: no evidence) the
         answer stays within ``free_px`` of ``prior``, the hypothesis it started from (the network's
