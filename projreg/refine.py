@@ -423,8 +423,8 @@ class GeometricRefiner:
         if not albedo:
             return self._dis.calc(gray0, warped, None)
         sigma = self.config.contrast_sigma
-        return self._dis.calc(normalize_contrast(gray0, sigma),
-                              normalize_contrast(divide_albedo(gray0, warped, albedo), sigma), None)  # fmt: skip
+        corrected = divide_albedo(gray0, warped, albedo)
+        return self._dis.calc(normalize_contrast(gray0, sigma), normalize_contrast(corrected, sigma), None)
 
 
 def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
