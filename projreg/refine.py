@@ -254,7 +254,7 @@ class GeometricRefiner:
             conf = self.confidence(normalised, cands, scores, best, evidence, repeating, plain)
         claimed = conf >= CONFIDENT
         name, kind = best.split("/")
-        why = "" if claimed.mean() >= cfg.min_evidence else f"no region verified ({100 * claimed.mean():.1f}%)"
+        why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeating, textured)
         # a pair reported as not registered claims nothing: a few stray pixels passing the checks are not
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(cands[best], claimed if not why else np.zeros_like(claimed), not why, why)
@@ -774,17 +774,25 @@ def fit_detail(
     return detail * near_data[..., None], best
 
 
-def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
+def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.ndarray) -> str:
+    """Why a pair that passed no check is not registered: a repeating pattern when most of its texture
+    repeats itself (no check can tell the right period from the next), else ``no region verified``."""
+    repeats = 0.0 if repeating is None or not textured.any() else float(repeating[textured].mean())
+    if repeats >= 0.5:
+        period = "a flow one period off would pass every check"
+        return f"repeating pattern: {100 * repeats:.0f}% of the projected texture repeats itself ({period})"
+    return f"no region verified ({100 * claimed.mean():.1f}%)"
+
+
+def periodicity(gray: np.ndarray, tiles: tuple[int, ...] = (64, 128, 256)) -> np.ndarray:
     """Per pixel, how well the image repeats itself around it, float32 ``(H, W)`` in [0, 1]: near 1 on a
     grating, a checkerboard or a tiled motif, whose match one period away is as good as the true
     one; low on an edge or a ramp, which stay similar under every move along them (the aperture
     problem, which the smooth surface model resolves from their neighbours).
 
-    Each ``tile`` x ``tile`` window (side by side, Hann-weighted) gives its autocorrelation (FFT,
-    zero-padded, divided by the window's own so a shift is not penalised for the smaller overlap);
-    the score is its highest value outside the central lobe (the connected region >= 0.3 around zero
-    shift, which holds an edge's ridge), within half a tile; the tiles' scores are interpolated over
-    the frame.
+    The highest of :func:`tile_periodicity` over the window sizes ``tiles`` that fit the image: a
+    window of side ``t`` sees periods up to about ``0.45 t`` (64: fine gratings; 256: a motif repeated
+    every 110 px, which a network's hypothesis can miss by one period).
 
     Example:
         >>> x = np.arange(128, dtype=np.float32)
@@ -795,10 +803,18 @@ def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
         >>> bool(periodicity(edge)[48, 64] < 0.3)
         True
     """
+    scores = [tile_periodicity(gray, t) for t in tiles if min(gray.shape) >= t]
+    return np.maximum.reduce(scores) if scores else np.zeros(gray.shape, np.float32)
+
+
+def tile_periodicity(gray: np.ndarray, tile: int) -> np.ndarray:
+    """:func:`periodicity` at one window size: each ``tile`` x ``tile`` window (side by side, Hann-weighted)
+    gives its autocorrelation (FFT, zero-padded, divided by the window's own so a shift is not
+    penalised for the smaller overlap); the score is its highest value outside the central lobe (the
+    connected region >= 0.3 around zero shift, which holds an edge's ridge), within half a tile; the
+    tiles' scores are interpolated over the frame. The image must be at least ``tile`` on each side."""
     h, w = gray.shape
     g = gray.astype(np.float32)
-    if min(h, w) < tile:
-        return np.zeros((h, w), np.float32)
     starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile), n - tile]) for n in (h, w)]
     hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
     tiles = np.stack([g[y : y + tile, x : x + tile] for y in starts[0] for x in starts[1]])  # [T, tile, tile]
