@@ -74,13 +74,15 @@ class RefineConfig:
     still match: on the issue-14 test split it turned one pair's 28 px into 2.4 px); ``detail_grid``:
     the fine P-spline added to the coarse one where cross-validation says the residual carries finer
     surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
-    only); ``periodic_peak``: pixels where the projected image repeats itself (:func:`periodicity` at
-    least this) are not claimed, whatever the checks say (1: no test); ``albedo_window``: the median
-    window (odd, px) of the wall's reflectance estimate (:func:`divide_albedo`) under the albedo
-    candidates' residual and in what the selection and the checks compare (0: no albedo candidates,
-    and the checks see the normalised captured image as it is); ``max_side``:
-    refine the pair shrunk to this longer side and bring the flow and the confidence back to its own
-    grid (None: at its own size; the pixel parameters are then in the shrunk pair's pixels).
+    only); ``periodic_peak`` and ``coarse_peak``: pixels where the projected image repeats itself
+    (:func:`repeating`: its 64 px window scores at least ``periodic_peak``, a 128 or 256 px window at
+    least ``coarse_peak``) are not claimed, whatever the checks say (``periodic_peak`` 1: no test);
+    ``albedo_window``: the median window (odd, px) of the wall's reflectance estimate
+    (:func:`divide_albedo`) under the albedo candidates' residual and in what the selection and the
+    checks compare (0: no albedo candidates, and the checks see the normalised captured image as it
+    is); ``max_side``: refine the pair shrunk to this longer side and bring the flow and the
+    confidence back to its own grid (None: at its own size; the pixel parameters are then in the
+    shrunk pair's pixels).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -106,6 +108,7 @@ class RefineConfig:
     detail_grid: tuple[int, int] | None = (14, 11)
     detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
     periodic_peak: float = 0.85
+    coarse_peak: float = 0.93
     albedo_window: int = 31
     max_side: int | None = None
 
@@ -244,17 +247,17 @@ class GeometricRefiner:
         cands, scores = self._candidates(images, hypotheses, plain, evidence, step, textured, support)
         best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
         # a repeating pattern: a flow off by one period passes every check (computed once per pair)
-        repeating = periodicity(normalised[0]) >= cfg.periodic_peak if cfg.periodic_peak < 1 else None
-        conf = self.confidence(normalised, cands, scores, best, evidence, repeating, plain)
+        repeats = repeating(normalised[0], cfg.periodic_peak, cfg.coarse_peak) if cfg.periodic_peak < 1 else None
+        conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
         net = [k for k in scores if k.startswith("network/")]
         if (conf >= CONFIDENT).mean() < cfg.min_evidence and net and best not in net:
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than the identity's
             best = max(net, key=lambda k: scores[k])
-            conf = self.confidence(normalised, cands, scores, best, evidence, repeating, plain)
+            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
         claimed = conf >= CONFIDENT
         name, kind = best.split("/")
-        why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeating, textured)
+        why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeats, textured)
         # a pair reported as not registered claims nothing: a few stray pixels passing the checks are not
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(cands[best], claimed if not why else np.zeros_like(claimed), not why, why)
@@ -784,15 +787,31 @@ def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.n
     return f"no region verified ({100 * claimed.mean():.1f}%)"
 
 
-def periodicity(gray: np.ndarray, tiles: tuple[int, ...] = (64, 128, 256)) -> np.ndarray:
+def repeating(gray: np.ndarray, fine_peak: float = 0.85, coarse_peak: float = 0.93) -> np.ndarray:
+    """Pixels where the image repeats itself, bool ``(H, W)``: :func:`periodicity` at least ``fine_peak``
+    in the 64 px window or ``coarse_peak`` in the 128 or 256 px windows (those that fit the image).
+
+    The coarse windows ask for a closer repeat: a photograph of a regular thing (a brick wall) scores
+    0.83-0.91 there, from its courses, while its detail differs from one brick to the next, which the
+    photometric check sees; a repeated digital motif scores 0.98-1.00 (docs/model.md)."""
+    out = np.zeros(gray.shape, bool)
+    for tile, peak in ((64, fine_peak), (128, coarse_peak), (256, coarse_peak)):
+        if min(gray.shape) >= tile:  # a smaller image: no such window
+            out |= periodicity(gray, tile) >= peak
+    return out
+
+
+def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
     """Per pixel, how well the image repeats itself around it, float32 ``(H, W)`` in [0, 1]: near 1 on a
     grating, a checkerboard or a tiled motif, whose match one period away is as good as the true
     one; low on an edge or a ramp, which stay similar under every move along them (the aperture
     problem, which the smooth surface model resolves from their neighbours).
 
-    The highest of :func:`tile_periodicity` over the window sizes ``tiles`` that fit the image: a
-    window of side ``t`` sees periods up to about ``0.45 t`` (64: fine gratings; 256: a motif repeated
-    every 110 px, which a network's hypothesis can miss by one period).
+    Each ``tile`` x ``tile`` window (side by side, Hann-weighted) gives its autocorrelation (FFT,
+    zero-padded, divided by the window's own so a shift is not penalised for the smaller overlap);
+    the score is its highest value outside the central lobe (the connected region >= 0.3 around zero
+    shift, which holds an edge's ridge), within half a tile; the tiles' scores are interpolated over
+    the frame. The window's edge weights leave periods up to about ``0.45 tile`` visible (64: 28 px).
 
     Example:
         >>> x = np.arange(128, dtype=np.float32)
@@ -803,17 +822,9 @@ def periodicity(gray: np.ndarray, tiles: tuple[int, ...] = (64, 128, 256)) -> np
         >>> bool(periodicity(edge)[48, 64] < 0.3)
         True
     """
-    scores = [tile_periodicity(gray, t) for t in tiles if min(gray.shape) >= t]
-    return np.maximum.reduce(scores) if scores else np.zeros(gray.shape, np.float32)
-
-
-def tile_periodicity(gray: np.ndarray, tile: int) -> np.ndarray:
-    """:func:`periodicity` at one window size: each ``tile`` x ``tile`` window (side by side, Hann-weighted)
-    gives its autocorrelation (FFT, zero-padded, divided by the window's own so a shift is not
-    penalised for the smaller overlap); the score is its highest value outside the central lobe (the
-    connected region >= 0.3 around zero shift, which holds an edge's ridge), within half a tile; the
-    tiles' scores are interpolated over the frame. The image must be at least ``tile`` on each side."""
     h, w = gray.shape
+    if min(h, w) < tile:
+        return np.zeros((h, w), np.float32)
     g = gray.astype(np.float32)
     starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile), n - tile]) for n in (h, w)]
     hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
