@@ -30,11 +30,18 @@ from projreg.refine import (
 )
 from projsynth.shards import ShardReader
 
-ROWS = ("network alone", "homography fitted to it", "+ residual and refit (homography only)",
-        "+ DIS residual as is", "+ B-spline residual instead (network hypothesis only)",
-        "identity hypothesis only (no network)", "both hypotheses, plain images only",
-        "both hypotheses, normalised images only", "both x both images, NCC selection (the default)",
-        "sift-ransac (baseline)")  # fmt: skip
+ROWS = (
+    "network alone",
+    "homography fitted to it",
+    "+ residual and refit (homography only)",
+    "+ DIS residual as is",
+    "+ B-spline residual instead (network hypothesis only)",
+    "identity hypothesis only (no network)",
+    "both hypotheses, plain images only",
+    "both hypotheses, normalised images only",
+    "both x both images, NCC selection (the default)",
+    "sift-ransac (baseline)",
+)
 
 
 def stages(refiner: GeometricRefiner, variants: list[GeometricRefiner], sift, projected, captured, net):
@@ -49,9 +56,17 @@ def stages(refiner: GeometricRefiner, variants: list[GeometricRefiner], sift, pr
     H = np.eye(3) if fit is None else fit[0]
     base, residual, spline = refiner.hypothesis(gray0, gray1, H, weight, step, everywhere, everywhere, net)
     identity = refiner.hypothesis(gray0, gray1, np.eye(3), weight, step, everywhere, everywhere, 0 * net)[2]
-    return [net, homography_flow(H, h, w), base, compose(base, residual), spline, identity,
-            *(v.refine(projected, captured, net)[0] for v in variants), refiner.refine(projected, captured, net)[0],
-            sift.predict(projected, captured)]  # fmt: skip
+    return [
+        net,
+        homography_flow(H, h, w),
+        base,
+        compose(base, residual),
+        spline,
+        identity,
+        *(v.refine(projected, captured, net)[0] for v in variants),
+        refiner.refine(projected, captured, net)[0],
+        sift.predict(projected, captured),
+    ]
 
 
 def main() -> None:

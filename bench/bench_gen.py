@@ -128,8 +128,9 @@ def main() -> None:
     # up to 64 transforms spread evenly over every family; more samples = more pairs
     per_role = min(args.samples // 2, 64)
     spread = ",".join(str(i) for i in np.linspace(0, 159, per_role).astype(int))
-    plan = resolve_plan(size=size, seed=0, split="train", pairs=max(1, args.samples // (2 * per_role)), blend="paper",
-                        transforms=spread)  # fmt: skip
+    plan = resolve_plan(
+        size=size, seed=0, split="train", pairs=max(1, args.samples // (2 * per_role)), blend="paper", transforms=spread
+    )
     one_pair = resolve_plan(size=size, seed=0, split="train", pairs=1, blend="paper", transforms=spread)
     half = one_pair.num_samples // 2
     make_sample(plan, 0)  # warm caches and imports

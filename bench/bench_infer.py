@@ -62,19 +62,21 @@ def _ms(call, repeats: int) -> tuple[float, float]:
 
 def _machine() -> str:
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
-    return (f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__} ({torch.get_num_threads()} "
-            f"threads), load average {load}")  # fmt: skip
+    return (
+        f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__} ({torch.get_num_threads()} "
+        f"threads), load average {load}"
+    )
 
 
 def latency(args: argparse.Namespace) -> None:
     small = load_model(reference_checkpoint(), CPU)
     base = build_model("base").eval()
-    variants = [("small", "torch fp32", lambda: TorchNetwork(small, CPU)),
-                ("small", "torch bf16", lambda: TorchNetwork(load_model(reference_checkpoint(), CPU), CPU,
-                                                             torch.bfloat16)),
-                ("base", "torch fp32", lambda: TorchNetwork(base, CPU)),
-                ("base", "torch bf16", lambda: TorchNetwork(build_model("base").eval(), CPU,
-                                                            torch.bfloat16))]  # fmt: skip
+    variants = [
+        ("small", "torch fp32", lambda: TorchNetwork(small, CPU)),
+        ("small", "torch bf16", lambda: TorchNetwork(load_model(reference_checkpoint(), CPU), CPU, torch.bfloat16)),
+        ("base", "torch fp32", lambda: TorchNetwork(base, CPU)),
+        ("base", "torch bf16", lambda: TorchNetwork(build_model("base").eval(), CPU, torch.bfloat16)),
+    ]
     if args.onnx:
         variants.insert(2, ("small", "onnxruntime fp32", lambda: OnnxNetwork(args.onnx, CPU)))
     rng = np.random.default_rng(0)
@@ -87,8 +89,9 @@ def latency(args: argparse.Namespace) -> None:
             for batch in (1, 8) if h * w <= 384 * 512 else (1,):
                 img = rng.integers(0, 256, (batch, h, w, 3), dtype=np.uint8)
                 wall, cpu = _ms(lambda net=net, img=img: net(img, img[:, ::-1, ::-1].copy()), args.repeats)
-                print(f"| {name} | {runtime} | {h} x {w} | {batch} | {wall / batch:.0f} | {cpu / batch:.0f} |",
-                      flush=True)  # fmt: skip
+                print(
+                    f"| {name} | {runtime} | {h} x {w} | {batch} | {wall / batch:.0f} | {cpu / batch:.0f} |", flush=True
+                )
         del net
     print(f"# {_machine()}")
 

@@ -42,8 +42,10 @@ def main() -> None:
             out.append(_timed(r, int(k)))
     for path, r, out in zip((args.a, args.b), readers, times, strict=True):
         wall, cpu = (statistics.median(v) for v in zip(*out, strict=True))
-        print(f"{path} (format {r.manifest['format_version']}): {wall:.2f} ms wall, {cpu:.2f} ms CPU "
-              f"(median of {args.reads})")  # fmt: skip
+        print(
+            f"{path} (format {r.manifest['format_version']}): {wall:.2f} ms wall, {cpu:.2f} ms CPU "
+            f"(median of {args.reads})"
+        )
         r.close()
 
 

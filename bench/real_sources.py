@@ -21,8 +21,20 @@ import cv2
 import numpy as np
 
 # ``cat`` is the same picture as ``chelsea``; ``retina`` and ``hubble_deep_field`` are mostly black
-PHOTOGRAPHS = ("astronaut", "brick", "camera", "chelsea", "clock", "coffee", "coins", "grass", "gravel",
-               "immunohistochemistry", "moon", "rocket")  # fmt: skip
+PHOTOGRAPHS = (
+    "astronaut",
+    "brick",
+    "camera",
+    "chelsea",
+    "clock",
+    "coffee",
+    "coins",
+    "grass",
+    "gravel",
+    "immunohistochemistry",
+    "moon",
+    "rocket",
+)
 ARTWORK = ("logo", "colorwheel", "text", "page", "horse", "shepp_logan_phantom", "binary_blobs")
 
 

@@ -144,8 +144,9 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
         Method(f"{name}-raw", "model", raw, prefetch=prefetch),
     ]
     tracker = Tracker(refined, refiner)
-    return (both if refine == "both" else both[:1]) + ([Method(f"{name}+track", "model", tracker, True, tracker)]
-                                                      if track else [])  # fmt: skip
+    return (both if refine == "both" else both[:1]) + (
+        [Method(f"{name}+track", "model", tracker, True, tracker)] if track else []
+    )
 
 
 class BatchedFlows:
@@ -235,8 +236,15 @@ class _Scores:
         for g, key in groups.items():
             self.groups[g].setdefault(key, EPEAccumulator()).merge(one)
         r = one.result()
-        self.pairs.append({"id": sid, "epe": r["epe"], "epe_claimed": r["epe_claimed"], "claimed": r["claimed"],
-                           "registered": pred.registered})  # fmt: skip
+        self.pairs.append(
+            {
+                "id": sid,
+                "epe": r["epe"],
+                "epe_claimed": r["epe_claimed"],
+                "claimed": r["claimed"],
+                "registered": pred.registered,
+            }
+        )
 
     def result(self, method: Method) -> dict:
         out = {"name": method.name, "kind": method.kind, "refined": method.refined, **self.all.result()}
@@ -401,30 +409,43 @@ def run_bench(
                 sc.ms.append(1000 * (time.perf_counter() - t0) + shares.get(m.name, 0.0))
                 sc.add(pred, s["flow"], s["valid"], groups, sid, str(s["params"].get("sequence", "")))
                 # the compensation honours what a method claims: unclaimed pixels get no content
-                flows[m.name] = pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow,
-                                                                                np.nan)  # fmt: skip
+                flows[m.name] = (
+                    pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow, np.nan)
+                )
             if loop is not None:
                 comp = loop.score(k, s, flows)
                 uncompensated.comp.append(comp.pop(UNCOMPENSATED))
                 for m, sc in zip(methods, scores, strict=True):
                     sc.comp.append(comp[m.name])
                 if sheet is not None and done <= SHEET_ROWS:
-                    sheet.append(sheet_row(loop.last_views, methods[0].name, f"{s['params']['sample_id']}: "
-                                           f"{methods[0].name}"))  # fmt: skip
+                    sheet.append(
+                        sheet_row(loop.last_views, methods[0].name, f"{s['params']['sample_id']}: {methods[0].name}")
+                    )
             if progress:
                 progress(done, len(indices))
     finally:
         reader.close()
     man = reader.manifest
-    dataset = {"path": str(data), "num_samples": len(reader), "evaluated": len(indices), "size": man.get("size"),
-               "camera_size": man.get("camera_size", man.get("size")), "seed": man.get("seed"),
-               "split": man.get("split"), "config_hash": man.get("config_hash")}  # fmt: skip
+    dataset = {
+        "path": str(data),
+        "num_samples": len(reader),
+        "evaluated": len(indices),
+        "size": man.get("size"),
+        "camera_size": man.get("camera_size", man.get("size")),
+        "seed": man.get("seed"),
+        "split": man.get("split"),
+        "config_hash": man.get("config_hash"),
+    }
     results = [sc.result(m) for m, sc in zip(methods, scores, strict=True)]
     if uncompensated is not None:
         row = uncompensated.result(Method(UNCOMPENSATED, "none", lambda a, b: a))
         results.append({**row, **{k: None for k in KEYS if k not in ("pixels", "images")}, "ms_per_pair": None})
-    return {"dataset": dataset, "reference_model": None if reference is None else str(reference),
-            "results": results, "versus_baselines": versus_baselines(results)}  # fmt: skip
+    return {
+        "dataset": dataset,
+        "reference_model": None if reference is None else str(reference),
+        "results": results,
+        "versus_baselines": versus_baselines(results),
+    }
 
 
 def versus_baselines(results: Sequence[dict], ratio_limit: float = RATIO_LIMIT) -> dict[str, dict]:
@@ -458,11 +479,18 @@ def versus_baselines(results: Sequence[dict], ratio_limit: float = RATIO_LIMIT) 
             if p["epe_claimed"] is not None:
                 ratios.append((p["epe_claimed"] / max(min(best), 1e-6), p["id"]))
         worst = max(ratios, default=(None, None))
-        out[r["name"]] = {"baselines": [b["name"] for b in base], "pairs": paired, "rated": len(ratios),
-                          "worst_ratio": worst[0], "worst_ratio_id": worst[1],
-                          "within": _mean([float(q <= ratio_limit) for q, _ in ratios]),
-                          "claimed_mean": _mean(claims), "mean_pair_epe": _mean(epes),
-                          "best_baseline": best_name, "best_baseline_mean_pair_epe": means[best_name]}  # fmt: skip
+        out[r["name"]] = {
+            "baselines": [b["name"] for b in base],
+            "pairs": paired,
+            "rated": len(ratios),
+            "worst_ratio": worst[0],
+            "worst_ratio_id": worst[1],
+            "within": _mean([float(q <= ratio_limit) for q, _ in ratios]),
+            "claimed_mean": _mean(claims),
+            "mean_pair_epe": _mean(epes),
+            "best_baseline": best_name,
+            "best_baseline_mean_pair_epe": means[best_name],
+        }
     return out
 
 
@@ -508,8 +536,10 @@ def parse_threshold(spec: str) -> tuple[str, float, str | None]:
     except ValueError:
         value = math.nan
     if not sep or metric not in GATED or not math.isfinite(value):
-        raise ProjregError(f"--fail-above: expected [NAME:]METRIC=VALUE with METRIC in {', '.join(GATED)} and a "
-                           f"finite VALUE, got {spec!r}")  # fmt: skip
+        raise ProjregError(
+            f"--fail-above: expected [NAME:]METRIC=VALUE with METRIC in {', '.join(GATED)} and a "
+            f"finite VALUE, got {spec!r}"
+        )
     if name == "":
         raise ProjregError(f"--fail-above: empty method name before ':' in {spec!r}")
     return metric, value, name
@@ -528,11 +558,15 @@ def check_thresholds(report: dict, thresholds: Sequence[tuple[str, float, str | 
     names = {r["name"] for r in models}
     for _, _, name in thresholds:
         if name is not None and name not in names:
-            raise ProjregError(f"--fail-above: no model named {name!r} in the report; "
-                               f"models: {', '.join(sorted(names))}")  # fmt: skip
-    return [f"{r['name']}: {metric} {r[metric]:.4f} > {limit:g}"
-            for r in models for metric, limit, name in thresholds
-            if name in (None, r["name"]) and r[metric] is not None and r[metric] > limit]  # fmt: skip
+            raise ProjregError(
+                f"--fail-above: no model named {name!r} in the report; models: {', '.join(sorted(names))}"
+            )
+    return [
+        f"{r['name']}: {metric} {r[metric]:.4f} > {limit:g}"
+        for r in models
+        for metric, limit, name in thresholds
+        if name in (None, r["name"]) and r[metric] is not None and r[metric] > limit
+    ]
 
 
 def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
@@ -553,32 +587,78 @@ def compact_table(report: dict) -> str:
     header = ["method", "kind", "EPE", *BUCKETS, *(f"px{t} %" for t in THRESHOLDS), "ms/pair"]
     header += ["comp PSNR dB", "comp SSIM"] if comp else []
     header += ["jitter"] if jitter else []
-    rows = [[r["name"], r["kind"], *(_fmt(r[k]) for k in ("epe", *BUCKETS)),
-             *(_fmt(r[f"px{t}"], 100) for t in THRESHOLDS), _fmt(r["ms_per_pair"])]
-            + ([_fmt(r.get("comp_psnr")), _fmt(r.get("comp_ssim"), digits=3)] if comp else [])
-            + ([_fmt(r.get("jitter"), digits=3)] if jitter else [])
-            for r in report["results"]]  # fmt: skip
+    rows = [
+        [
+            r["name"],
+            r["kind"],
+            *(_fmt(r[k]) for k in ("epe", *BUCKETS)),
+            *(_fmt(r[f"px{t}"], 100) for t in THRESHOLDS),
+            _fmt(r["ms_per_pair"]),
+        ]
+        + ([_fmt(r.get("comp_psnr")), _fmt(r.get("comp_ssim"), digits=3)] if comp else [])
+        + ([_fmt(r.get("jitter"), digits=3)] if jitter else [])
+        for r in report["results"]
+    ]
     return _table(header, rows)
 
 
 def worst_case_table(report: dict) -> str:
     """One row per method: pooled EPE beside the per-pair distribution, then what it claims."""
-    header = ["method", "EPE", "pair median", "pair p90", "worst pair", "worst id", "claimed %", "EPE claimed",
-              "not registered"]  # fmt: skip
-    rows = [[r["name"], _fmt(r["epe"]), _fmt(r["pair_median"]), _fmt(r["pair_p90"]), _fmt(r["worst_epe"]),
-             str(r["worst_id"]) if r["worst_id"] is not None else "–", _fmt(r["claimed"], 100),
-             _fmt(r["epe_claimed"]), str(len(r["unregistered"]))] for r in report["results"]]  # fmt: skip
+    header = [
+        "method",
+        "EPE",
+        "pair median",
+        "pair p90",
+        "worst pair",
+        "worst id",
+        "claimed %",
+        "EPE claimed",
+        "not registered",
+    ]
+    rows = [
+        [
+            r["name"],
+            _fmt(r["epe"]),
+            _fmt(r["pair_median"]),
+            _fmt(r["pair_p90"]),
+            _fmt(r["worst_epe"]),
+            str(r["worst_id"]) if r["worst_id"] is not None else "–",
+            _fmt(r["claimed"], 100),
+            _fmt(r["epe_claimed"]),
+            str(len(r["unregistered"])),
+        ]
+        for r in report["results"]
+    ]
     return _table(header, rows)
 
 
 def versus_table(report: dict) -> str:
     """One row per model: the pair-by-pair comparison with the best baseline (``versus_baselines``)."""
-    header = ["model", "pairs rated", f"within {RATIO_LIMIT:g}x %", "worst ratio", "worst ratio id", "claimed %",
-              "mean pair EPE", "best baseline", "its mean pair EPE"]  # fmt: skip
-    rows = [[name, f"{v['rated']} / {v['pairs']}", _fmt(v["within"], 100), _fmt(v["worst_ratio"]),
-             str(v["worst_ratio_id"]) if v["worst_ratio_id"] is not None else "–", _fmt(v["claimed_mean"], 100),
-             _fmt(v["mean_pair_epe"]), v["best_baseline"], _fmt(v["best_baseline_mean_pair_epe"])]
-            for name, v in report["versus_baselines"].items()]  # fmt: skip
+    header = [
+        "model",
+        "pairs rated",
+        f"within {RATIO_LIMIT:g}x %",
+        "worst ratio",
+        "worst ratio id",
+        "claimed %",
+        "mean pair EPE",
+        "best baseline",
+        "its mean pair EPE",
+    ]
+    rows = [
+        [
+            name,
+            f"{v['rated']} / {v['pairs']}",
+            _fmt(v["within"], 100),
+            _fmt(v["worst_ratio"]),
+            str(v["worst_ratio_id"]) if v["worst_ratio_id"] is not None else "–",
+            _fmt(v["claimed_mean"], 100),
+            _fmt(v["mean_pair_epe"]),
+            v["best_baseline"],
+            _fmt(v["best_baseline_mean_pair_epe"]),
+        ]
+        for name, v in report["versus_baselines"].items()
+    ]
     return _table(header, rows)
 
 
@@ -588,16 +668,28 @@ def to_markdown(report: dict) -> str:
     ds = report["dataset"]
     flows = [r for r in report["results"] if r["kind"] != "none"]  # the uncompensated row has no flow
     columns = list(dict.fromkeys(k for r in flows for k in r["groups"]["pair_role"]))
-    rows = [[r["name"], label, *(_fmt(r["groups"]["pair_role"].get(c, {}).get(key)) for c in columns),
-             _fmt(r[key])] for r in flows for label, key in TABLE_METRICS]  # fmt: skip
+    rows = [
+        [r["name"], label, *(_fmt(r["groups"]["pair_role"].get(c, {}).get(key)) for c in columns), _fmt(r[key])]
+        for r in flows
+        for label, key in TABLE_METRICS
+    ]
     size = "x".join(str(v) for v in ds["size"]) if ds["size"] else "?"
     ref = report["reference_model"]
-    lines = [f"# projreg bench: {ds['path']}", "",
-             f"{ds['evaluated']} of {ds['num_samples']} samples, {size}, split {ds['split']}, seed {ds['seed']}, "
-             f"config {str(ds['config_hash'])[:12]}; reference model: {ref if ref else 'none'}.", "",
-             _table(["method", "metric", *columns, "all"], rows), "", compact_table(report), "",
-             "Per pair (EPE of each pair's valid pixels) and on the pixels each method claims:", "",
-             worst_case_table(report), ""]  # fmt: skip
+    lines = [
+        f"# projreg bench: {ds['path']}",
+        "",
+        f"{ds['evaluated']} of {ds['num_samples']} samples, {size}, split {ds['split']}, seed {ds['seed']}, "
+        f"config {str(ds['config_hash'])[:12]}; reference model: {ref if ref else 'none'}.",
+        "",
+        _table(["method", "metric", *columns, "all"], rows),
+        "",
+        compact_table(report),
+        "",
+        "Per pair (EPE of each pair's valid pixels) and on the pixels each method claims:",
+        "",
+        worst_case_table(report),
+        "",
+    ]
     if report["versus_baselines"]:
         lines += ["Each model against the best baseline of each pair:", "", versus_table(report), ""]
     return "\n".join(lines)

@@ -30,8 +30,7 @@ def atomic_save(obj: dict, path: Path, then: str = "then --resume") -> None:
     except (OSError, RuntimeError) as e:  # torch.save reports a missing or unwritable folder as RuntimeError
         tmp.unlink(missing_ok=True)
         reason = getattr(e, "strerror", None) or e
-        raise ProjregError(f"{path}: cannot write checkpoint ({reason}); free space or fix permissions, "
-                           f"{then}") from e  # fmt: skip
+        raise ProjregError(f"{path}: cannot write checkpoint ({reason}); free space or fix permissions, {then}") from e
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -43,8 +42,9 @@ def load_checkpoint(path: Path) -> dict:
     except IsADirectoryError:
         raise ProjregError(f"{path}: is a folder; pass a checkpoint file (RUN/checkpoints/last.pt)") from None
     except Exception as e:  # torch raises many types, with multi-line messages that suggest weights_only=False
-        raise ProjregError(f"{path}: not a readable checkpoint ({type(e).__name__}); "
-                           "pass a checkpoint written by `projreg train`") from e  # fmt: skip
+        raise ProjregError(
+            f"{path}: not a readable checkpoint ({type(e).__name__}); pass a checkpoint written by `projreg train`"
+        ) from e
 
 
 def export_checkpoint(src: Path, dst: Path) -> dict:
@@ -123,6 +123,8 @@ def load_model(path: Path, device: torch.device) -> SSJMFlow:
     try:
         model = model_from_checkpoint(ckpt)
     except (ValueError, ProjregError) as e:
-        raise ProjregError(f"{path}: weights do not match the checkpoint's model_config ({e}); "
-                           "pass a checkpoint as `projreg train` or `projreg export` wrote it") from e  # fmt: skip
+        raise ProjregError(
+            f"{path}: weights do not match the checkpoint's model_config ({e}); "
+            "pass a checkpoint as `projreg train` or `projreg export` wrote it"
+        ) from e
     return model.to(device).eval()

@@ -71,11 +71,11 @@ def _parse_crop(text: str) -> tuple[int, int] | None:
 
 @app.command(cls=Command)
 def train(
-    data: Annotated[list[Path], typer.Option(help="Training dataset directory (repeat for several).",
-                                             metavar="DIR")],
+    data: Annotated[list[Path], typer.Option(help="Training dataset directory (repeat for several).", metavar="DIR")],
     out: Annotated[Path, typer.Option(help="Run directory.", parser=output_path, metavar="RUN")],
-    val: Annotated[list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).",
-                                                  metavar="DIR")] = None,
+    val: Annotated[
+        list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).", metavar="DIR")
+    ] = None,
     model: Annotated[str, typer.Option(help="small or base.", metavar="small|base")] = "small",
     no_ssjm: Annotated[bool, typer.Option("--no-ssjm", help="Build the ablation without SSJM.")] = False,
     steps: Annotated[int, typer.Option(help="Stop after this many optimiser steps (resume to go further).")] = 15000,
@@ -83,26 +83,37 @@ def train(
     warmup_steps: Annotated[int, typer.Option(help="Linear warm-up steps of the schedule.")] = 100,
     batch_size: Annotated[int, typer.Option(help="Samples per step (per process under torchrun).", metavar="B")] = 8,
     lr: Annotated[float, typer.Option(help="Peak learning rate of the OneCycle schedule.")] = 4e-4,
-    seed: Annotated[int, typer.Option(help="Seed of initialisation, sample order and augmentation.",
-                                      metavar="S")] = 0,
-    crop: Annotated[str, typer.Option(help="Training crop HxW, or none for full frames.",
-                                      metavar="HxW|none")] = "256x320",
+    seed: Annotated[int, typer.Option(help="Seed of initialisation, sample order and augmentation.", metavar="S")] = 0,
+    crop: Annotated[
+        str, typer.Option(help="Training crop HxW, or none for full frames.", metavar="HxW|none")
+    ] = "256x320",
     workers: Annotated[int, typer.Option(help="DataLoader worker processes.", metavar="K")] = 2,
     val_every: Annotated[int, typer.Option(help="Validate every N steps.")] = 500,
-    val_samples: Annotated[int, typer.Option(help="Validate on N samples spread over --val (best.pt is chosen "
-                                                  "on them).")] = 64,
+    val_samples: Annotated[
+        int, typer.Option(help="Validate on N samples spread over --val (best.pt is chosen on them).")
+    ] = 64,
     ckpt_every: Annotated[int, typer.Option(help="Write last.pt every N steps.")] = 100,
     log_every: Annotated[int, typer.Option(help="Log a metrics row every N steps.")] = 10,
     amp: Annotated[bool, typer.Option(help="bf16 autocast (CUDA only; default off).", show_default=False)] = False,
     compile: Annotated[bool, typer.Option("--compile", help="torch.compile the model.")] = False,
-    activation_checkpointing: Annotated[bool, typer.Option(help="Recompute attention in backward: less memory, "
-                                                             "~15% slower steps (default off).",
-                                                        show_default=False)] = False,
-    resume: Annotated[bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly (default off).",
-                                         show_default=False)] = False,
-    init: Annotated[str | None, typer.Option(help="Start from this checkpoint's weights (`reference`: the "
-                                                  "shipped model) with a fresh optimizer and schedule: "
-                                                  "fine-tuning.", metavar="CKPT|reference")] = None,
+    activation_checkpointing: Annotated[
+        bool,
+        typer.Option(
+            help="Recompute attention in backward: less memory, ~15% slower steps (default off).", show_default=False
+        ),
+    ] = False,
+    resume: Annotated[
+        bool, typer.Option(help="Continue RUN/checkpoints/last.pt exactly (default off).", show_default=False)
+    ] = False,
+    init: Annotated[
+        str | None,
+        typer.Option(
+            help="Start from this checkpoint's weights (`reference`: the "
+            "shipped model) with a fresh optimizer and schedule: "
+            "fine-tuning.",
+            metavar="CKPT|reference",
+        ),
+    ] = None,
     quiet: Quiet = False,
 ) -> None:
     """Train the registration network on projsynth shards."""
@@ -113,14 +124,31 @@ def train(
     quiet = quiet or not is_rank0()  # under torchrun, rank 0 speaks for the run
     _torch_threads()
     try:
-        cfg = TrainConfig(data=[str(p) for p in data], out=str(out), val=[str(p) for p in val or []], model=model,
-                          use_ssjm=not no_ssjm, steps=steps, schedule_steps=schedule_steps,
-                          warmup_steps=warmup_steps, batch_size=batch_size, lr=lr, seed=seed,
-                          workers=workers, crop=_parse_crop(crop), val_every=val_every, val_samples=val_samples,
-                          ckpt_every=ckpt_every,
-                          log_every=log_every, amp=amp, compile=compile,
-                          activation_checkpointing=activation_checkpointing, init=init)  # fmt: skip
+        cfg = TrainConfig(
+            data=[str(p) for p in data],
+            out=str(out),
+            val=[str(p) for p in val or []],
+            model=model,
+            use_ssjm=not no_ssjm,
+            steps=steps,
+            schedule_steps=schedule_steps,
+            warmup_steps=warmup_steps,
+            batch_size=batch_size,
+            lr=lr,
+            seed=seed,
+            workers=workers,
+            crop=_parse_crop(crop),
+            val_every=val_every,
+            val_samples=val_samples,
+            ckpt_every=ckpt_every,
+            log_every=log_every,
+            amp=amp,
+            compile=compile,
+            activation_checkpointing=activation_checkpointing,
+            init=init,
+        )
         with Bar("train", quiet, unit="step") as bar, _ValBar(quiet) as val_bar:
+
             def progress(step: int, loss: float) -> None:
                 bar.done(step, steps)
                 if math.isfinite(loss):  # the loss is read from the device once per log interval
@@ -141,9 +169,11 @@ def train(
     if summary["interrupted"]:
         code = 130 if summary["interrupted"] == "SIGINT" else 143  # 128 + the signal, as a shell reports it
         if is_rank0():  # even with --quiet: where the run stands must not pass unnoticed
-            typer.echo(f"projreg: {summary['interrupted']}: stopped at step {summary['step']}; checkpoint "
-                       f"{summary['checkpoint']} written; the same command with --resume continues",
-                       err=True)  # fmt: skip
+            typer.echo(
+                f"projreg: {summary['interrupted']}: stopped at step {summary['step']}; checkpoint "
+                f"{summary['checkpoint']} written; the same command with --resume continues",
+                err=True,
+            )
     elif not quiet:
         typer.echo(train_summary(out, summary), err=True)
     if torchrun:
@@ -184,14 +214,27 @@ class _ValBar:
 
 @app.command(cls=Command)
 def export(
-    checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint written by `projreg train` (last.pt or "
-                                                         "best.pt); with --onnx also `reference`, the default "
-                                                         "there.", metavar="CKPT")] = None,
-    out: Annotated[Path | None, typer.Option(help="Deployable checkpoint to write.", parser=output_path,
-                                             metavar="FILE")] = None,
-    onnx: Annotated[Path | None, typer.Option("--onnx", help="Write the network (no refinement) as an ONNX graph "
-                                              "instead (needs the optional onnx extra).", parser=output_path,
-                                              metavar="FILE.onnx")] = None,
+    checkpoint: Annotated[
+        Path | None,
+        typer.Option(
+            help="Checkpoint written by `projreg train` (last.pt or "
+            "best.pt); with --onnx also `reference`, the default "
+            "there.",
+            metavar="CKPT",
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Deployable checkpoint to write.", parser=output_path, metavar="FILE")
+    ] = None,
+    onnx: Annotated[
+        Path | None,
+        typer.Option(
+            "--onnx",
+            help="Write the network (no refinement) as an ONNX graph instead (needs the optional onnx extra).",
+            parser=output_path,
+            metavar="FILE.onnx",
+        ),
+    ] = None,
     opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (>= 16).", metavar="N")] = 18,
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
@@ -200,8 +243,10 @@ def export(
 
     try:
         if (out is None) == (onnx is None):
-            raise ProjregError("give --out CKPT (a deployable checkpoint) or --onnx FILE.onnx (an ONNX graph of the "
-                               "network), one of them")  # fmt: skip
+            raise ProjregError(
+                "give --out CKPT (a deployable checkpoint) or --onnx FILE.onnx (an ONNX graph of the "
+                "network), one of them"
+            )
         if onnx is not None:
             written = export_checkpoint_onnx(checkpoint, onnx, opset=opset)
             typer.echo(f"{written}: opset {opset}, {written.stat().st_size / 2**20:.2f} MiB", err=True)
@@ -227,19 +272,35 @@ PHOTOMETRIC_HELP = "With --compensation: geometric vs geometric + photometric ag
 @app.command(cls=Command)
 def bench(
     data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).", metavar="DIR")],
-    model: Annotated[list[Path] | None, typer.Option(help="Checkpoint, or `reference` (repeatable); "
-                                                     "default: the reference.", metavar="CKPT")] = None,
-    baselines: Annotated[str | None, typer.Option(help="Comma list, or none (default: dis-fast,dis-medium,"
-                                                      "farneback,sift-ransac).", show_default=False,
-                                                 metavar="LIST")] = None,
+    model: Annotated[
+        list[Path] | None,
+        typer.Option(help="Checkpoint, or `reference` (repeatable); default: the reference.", metavar="CKPT"),
+    ] = None,
+    baselines: Annotated[
+        str | None,
+        typer.Option(
+            help="Comma list, or none (default: dis-fast,dis-medium,farneback,sift-ransac).",
+            show_default=False,
+            metavar="LIST",
+        ),
+    ] = None,
     equalize: Annotated[bool, typer.Option("--equalize", help="Equalise histograms for the baselines.")] = False,
-    refine: Annotated[str, typer.Option(help="Geometric refinement after each model: on, off, or both "
-                                             "(two rows: NAME refined, NAME-raw).", metavar="on|off|both")] = "on",
+    refine: Annotated[
+        str,
+        typer.Option(
+            help="Geometric refinement after each model: on, off, or both (two rows: NAME refined, NAME-raw).",
+            metavar="on|off|both",
+        ),
+    ] = "on",
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON.", metavar="FILE")] = None,
     markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", metavar="FILE")] = None,
-    fail_above: Annotated[list[str] | None, typer.Option(help="[NAME:]METRIC=VALUE gate on models (repeatable; "
-                                                              "NAME: that model only).",
-                                                    metavar="[NAME:]METRIC=VALUE")] = None,
+    fail_above: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="[NAME:]METRIC=VALUE gate on models (repeatable; NAME: that model only).",
+            metavar="[NAME:]METRIC=VALUE",
+        ),
+    ] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
@@ -250,10 +311,17 @@ def bench(
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
-    sheet: Annotated[Path | None, typer.Option(help="With --compensation: contact sheet PNG of the first "
-                                                    "samples.", metavar="FILE.png")] = None,
-    track: Annotated[bool, typer.Option("--track", help="Sequences (gen --frames): also NAME+track rows, each frame "
-                                                         "from the previous one's flow; jitter.")] = False,
+    sheet: Annotated[
+        Path | None,
+        typer.Option(help="With --compensation: contact sheet PNG of the first samples.", metavar="FILE.png"),
+    ] = None,
+    track: Annotated[
+        bool,
+        typer.Option(
+            "--track",
+            help="Sequences (gen --frames): also NAME+track rows, each frame from the previous one's flow; jitter.",
+        ),
+    ] = False,
     quiet: Quiet = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
@@ -263,8 +331,9 @@ def bench(
     try:
         thresholds = [lib.parse_threshold(spec) for spec in fail_above or []]
         if sheet is not None and (not compensation or sheet.suffix.lower() != ".png"):
-            raise ProjregError(f"--sheet {sheet}: a PNG contact sheet of compensations; give --compensation and a "
-                               "name ending in .png")  # fmt: skip
+            raise ProjregError(
+                f"--sheet {sheet}: a PNG contact sheet of compensations; give --compensation and a name ending in .png"
+            )
         rows: list = []
         if baselines is None:
             names = list(lib.DEFAULT_BASELINES)
@@ -272,12 +341,27 @@ def bench(
             names = [] if baselines.strip().lower() == "none" else parse_baselines(baselines)
         _torch_threads()
         with Bar("bench", quiet, unit="pair") as bar:
-            report = lib.run_bench(data, models=model or [], baselines=names, equalize=equalize, refine=refine,
-                                   limit=limit, device=device, precision=precision, backend=backend, fast=fast,
-                                   compensation=compensation, photometric=photometric, sheet=rows,
-                                   progress=bar.done, track=track, batch_size=batch_size)  # fmt: skip
-        lib.write_outputs(report, json_path=json_out, markdown_path=markdown,
-                          sheet=None if sheet is None else (sheet, rows))  # all or nothing
+            report = lib.run_bench(
+                data,
+                models=model or [],
+                baselines=names,
+                equalize=equalize,
+                refine=refine,
+                limit=limit,
+                device=device,
+                precision=precision,
+                backend=backend,
+                fast=fast,
+                compensation=compensation,
+                photometric=photometric,
+                sheet=rows,
+                progress=bar.done,
+                track=track,
+                batch_size=batch_size,
+            )
+        lib.write_outputs(
+            report, json_path=json_out, markdown_path=markdown, sheet=None if sheet is None else (sheet, rows)
+        )  # all or nothing
         violations = lib.check_thresholds(report, thresholds)
     except ProjregError as e:
         raise _fail(e) from None
@@ -294,24 +378,37 @@ def bench(
 @app.command(cls=Command)
 def predict(
     projected: Annotated[Path, typer.Option(help="Projected image, or a folder of them.", metavar="IMG|DIR")],
-    captured: Annotated[Path, typer.Option(help="Captured image, or a folder (same relative names).",
-                                           metavar="IMG|DIR")],
+    captured: Annotated[
+        Path, typer.Option(help="Captured image, or a folder (same relative names).", metavar="IMG|DIR")
+    ],
     out: Annotated[Path, typer.Option(help="Flow EXR file, or output folder (folder mode).", metavar="FILE|DIR")],
-    viz: Annotated[Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).",
-                                            metavar="FILE|DIR")] = None,
-    model: Annotated[Path | None, typer.Option(help="Checkpoint, or `reference`; default: the shipped "
-                                                    "reference model.", metavar="CKPT")] = None,
+    viz: Annotated[
+        Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).", metavar="FILE|DIR")
+    ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option(help="Checkpoint, or `reference`; default: the shipped reference model.", metavar="CKPT"),
+    ] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
-    refine: Annotated[bool, typer.Option(help="Geometric refinement of the network's flow (docs/model.md; "
-                                              "default on).", show_default=False)] = True,
+    refine: Annotated[
+        bool,
+        typer.Option(
+            help="Geometric refinement of the network's flow (docs/model.md; default on).", show_default=False
+        ),
+    ] = True,
     max_flow: MaxFlow = None,
-    track: Annotated[bool, typer.Option("--track", help="Folders of frames of one sequence, in name order: each "
-                                                         "frame from the previous one's flow.")] = False,
+    track: Annotated[
+        bool,
+        typer.Option(
+            "--track", help="Folders of frames of one sequence, in name order: each frame from the previous one's flow."
+        ),
+    ] = False,
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
     backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="torch|onnxruntime")] = "torch",
-    batch_size: Annotated[int, typer.Option(help="Pairs per network call in folder mode (pairs of one size "
-                                                 "are batched).", metavar="N")] = 1,
+    batch_size: Annotated[
+        int, typer.Option(help="Pairs per network call in folder mode (pairs of one size are batched).", metavar="N")
+    ] = 1,
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     quiet: Quiet = False,
 ) -> None:
@@ -321,16 +418,32 @@ def predict(
     try:
         _torch_threads()
         with Bar("predict", quiet, unit="pair") as bar:
-            written = run_predict(projected, captured, out, viz=viz, model=model, max_side=max_side,
-                                  refine=refine, device=device, precision=precision, backend=backend,
-                                  batch_size=batch_size, fast=fast, progress=bar.done, max_flow=max_flow,
-                                  track=track)  # fmt: skip
+            written = run_predict(
+                projected,
+                captured,
+                out,
+                viz=viz,
+                model=model,
+                max_side=max_side,
+                refine=refine,
+                device=device,
+                precision=precision,
+                backend=backend,
+                batch_size=batch_size,
+                fast=fast,
+                progress=bar.done,
+                max_flow=max_flow,
+                track=track,
+            )
     except ProjregError as e:
         raise _fail(e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
         if not r.registered:
-            typer.echo(f"projreg: warning: {r.sample_id}: cannot be registered ({r.reason}); {r.out} holds a zero "
-                       "flow with no valid pixel", err=True)  # fmt: skip
+            typer.echo(
+                f"projreg: warning: {r.sample_id}: cannot be registered ({r.reason}); {r.out} holds a zero "
+                "flow with no valid pixel",
+                err=True,
+            )
     if not quiet:
         typer.echo(f"{len(written)} flow file(s) written: {out}", err=True)
 
@@ -338,12 +451,14 @@ def predict(
 @app.command(cls=Command)
 def compensate(
     content: Annotated[Path, typer.Option(help="Desired camera view (image).", metavar="IMG")],
-    flow: Annotated[Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).",
-                                       metavar="FILE.exr")],
+    flow: Annotated[
+        Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).", metavar="FILE.exr")
+    ],
     out: Annotated[Path, typer.Option(help="Projector image to write (PNG).", metavar="FILE.png")],
     fill: Annotated[int, typer.Option(help="Grey level of projector pixels without correspondence.")] = 0,
-    photometric: Annotated[bool, typer.Option("--photometric", help="Also correct colour and light "
-                                              "(needs --white and --black).")] = False,
+    photometric: Annotated[
+        bool, typer.Option("--photometric", help="Also correct colour and light (needs --white and --black).")
+    ] = False,
     white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
     black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
     gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
@@ -353,15 +468,20 @@ def compensate(
 
     try:
         if photometric and (white is None or black is None):
-            raise ProjregError("--photometric needs --white and --black: the camera's photos of a full-white and "
-                               "a full-black projection")  # fmt: skip
+            raise ProjregError(
+                "--photometric needs --white and --black: the camera's photos of a full-white and "
+                "a full-black projection"
+            )
         result = compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
     except ProjregError as e:
         raise _fail(e) from None
     h, w = result["size"]
     how = "geometric + photometric" if photometric else "geometric"
-    typer.echo(f"{out}: {w}x{h} projector image ({how}), content on {result['lit']:.1%} of its pixels, "
-               f"--fill {fill} elsewhere", err=True)  # fmt: skip
+    typer.echo(
+        f"{out}: {w}x{h} projector image ({how}), content on {result['lit']:.1%} of its pixels, "
+        f"--fill {fill} elsewhere",
+        err=True,
+    )
 
 
 def main() -> None:

@@ -58,8 +58,9 @@ def parse_device(text: str | torch.device | None) -> torch.device:
     if device.type == "cuda":
         if not torch.cuda.is_available():
             build = "a CPU-only build" if torch.version.cuda is None else "no CUDA device visible"
-            raise ProjregError(f"--device {text}: CUDA is not available here (torch {torch.__version__}, {build}); "
-                               "use --device cpu")  # fmt: skip
+            raise ProjregError(
+                f"--device {text}: CUDA is not available here (torch {torch.__version__}, {build}); use --device cpu"
+            )
         if (device.index or 0) >= torch.cuda.device_count():
             raise ProjregError(f"--device {text}: only {torch.cuda.device_count()} CUDA device(s) here")
     return device
@@ -74,8 +75,10 @@ def parse_precision(text: str, device: torch.device) -> torch.dtype:
     if text not in PRECISIONS:
         raise ProjregError(f"--precision {text!r}: expected one of {', '.join(PRECISIONS)}")
     if text == "fp16" and device.type == "cpu":
-        raise ProjregError("--precision fp16: float16 runs on CUDA only (on the CPU it is emulated, 7x slower "
-                           "than fp32); use --precision bf16 or fp32, or --device cuda")  # fmt: skip
+        raise ProjregError(
+            "--precision fp16: float16 runs on CUDA only (on the CPU it is emulated, 7x slower "
+            "than fp32); use --precision bf16 or fp32, or --device cuda"
+        )
     if text == "bf16" and device.type == "cuda" and not torch.cuda.is_bf16_supported():
         raise ProjregError(f"--precision bf16: {torch.cuda.get_device_name(device)} has no bfloat16; use fp16")
     return PRECISIONS[text]
@@ -90,8 +93,10 @@ class TorchNetwork:
 
     @torch.no_grad()
     def __call__(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
-        t0, t1 = (torch.from_numpy(np.ascontiguousarray(x)).to(self.device).permute(0, 3, 1, 2).float()
-                  for x in (projected, captured))  # [N, 3, H, W] each  # fmt: skip
+        t0, t1 = (
+            torch.from_numpy(np.ascontiguousarray(x)).to(self.device).permute(0, 3, 1, 2).float()
+            for x in (projected, captured)
+        )  # [N, 3, H, W] each
         return self.model(t0, t1)[-1].permute(0, 2, 3, 1).float().cpu().numpy()  # [N, H, W, 2]
 
 
@@ -112,22 +117,30 @@ class OnnxNetwork:
         providers: list = ["CPUExecutionProvider"]
         if device.type == "cuda":
             if "CUDAExecutionProvider" not in ort.get_available_providers():
-                raise ProjregError("--device cuda with --backend onnxruntime needs onnxruntime-gpu (this onnxruntime "
-                                   f"has {', '.join(ort.get_available_providers())})")  # fmt: skip
+                raise ProjregError(
+                    "--device cuda with --backend onnxruntime needs onnxruntime-gpu (this onnxruntime "
+                    f"has {', '.join(ort.get_available_providers())})"
+                )
             providers.insert(0, ("CUDAExecutionProvider", {"device_id": device.index or 0}))
         try:
             self.session = ort.InferenceSession(str(path), options, providers=providers)
         except Exception as e:
-            raise ProjregError(f"--model {path}: onnxruntime cannot load it ({str(e).strip().splitlines()[0]:.200}); "
-                               "pass a graph written by `projreg export --onnx`") from e  # fmt: skip
+            raise ProjregError(
+                f"--model {path}: onnxruntime cannot load it ({str(e).strip().splitlines()[0]:.200}); "
+                "pass a graph written by `projreg export --onnx`"
+            ) from e
         names = [i.name for i in self.session.get_inputs()], [o.name for o in self.session.get_outputs()]
         if names != (list(INPUTS), [OUTPUT]):
-            raise ProjregError(f"--model {path}: inputs {names[0]} and outputs {names[1]}, expected {list(INPUTS)} "
-                               f"and [{OUTPUT!r}]; pass a graph written by `projreg export --onnx`")  # fmt: skip
+            raise ProjregError(
+                f"--model {path}: inputs {names[0]} and outputs {names[1]}, expected {list(INPUTS)} "
+                f"and [{OUTPUT!r}]; pass a graph written by `projreg export --onnx`"
+            )
 
     def __call__(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
-        feed = {name: np.ascontiguousarray(x.transpose(0, 3, 1, 2), np.float32)
-                for name, x in zip(INPUTS, (projected, captured), strict=True)}  # [N, 3, H, W] each  # fmt: skip
+        feed = {
+            name: np.ascontiguousarray(x.transpose(0, 3, 1, 2), np.float32)
+            for name, x in zip(INPUTS, (projected, captured), strict=True)
+        }  # [N, 3, H, W] each
         return self.session.run([OUTPUT], feed)[0].transpose(0, 2, 3, 1)  # [N, H, W, 2]
 
 
@@ -162,11 +175,15 @@ def open_network(
             raise ProjregError(f"--model {model}: an ONNX graph; run it with --backend onnxruntime")
         return TorchNetwork(load_model(resolve_checkpoint(model), dev), dev, dtype)
     if not is_onnx:
-        raise ProjregError("--backend onnxruntime runs an exported graph: pass --model FILE.onnx (write it with "
-                           "`projreg export --onnx FILE.onnx`)")  # fmt: skip
+        raise ProjregError(
+            "--backend onnxruntime runs an exported graph: pass --model FILE.onnx (write it with "
+            "`projreg export --onnx FILE.onnx`)"
+        )
     if precision != "fp32":
-        raise ProjregError(f"--precision {precision}: the onnxruntime backend runs the exported float32 graph; "
-                           "use --backend torch for bf16/fp16")  # fmt: skip
+        raise ProjregError(
+            f"--precision {precision}: the onnxruntime backend runs the exported float32 graph; "
+            "use --backend torch for bf16/fp16"
+        )
     if not Path(model).is_file():
         raise ProjregError(f"--model {model}: no such file")
     return OnnxNetwork(Path(model), dev)

@@ -101,9 +101,16 @@ def export_onnx(model: SSJMFlow, out: Path, *, opset: int = DEFAULT_OPSET, metad
     try:
         with warnings.catch_warnings(), torch.no_grad(), _quiet("torch.onnx"):  # no_grad: a faster trace
             warnings.simplefilter("ignore")
-            program = torch.onnx.export(graph, example, input_names=list(INPUTS), output_names=[OUTPUT],
-                                        dynamic_shapes=dims, opset_version=opset, dynamo=True,
-                                        verbose=False)  # fmt: skip
+            program = torch.onnx.export(
+                graph,
+                example,
+                input_names=list(INPUTS),
+                output_names=[OUTPUT],
+                dynamic_shapes=dims,
+                opset_version=opset,
+                dynamo=True,
+                verbose=False,
+            )
     except ImportError as e:
         raise ProjregError(f"--onnx needs {e.name or 'onnxscript'}: pip install 'projsynth[onnx]'") from e
     except Exception as e:  # the exporter's own errors carry pages of context; keep the first line
@@ -111,8 +118,11 @@ def export_onnx(model: SSJMFlow, out: Path, *, opset: int = DEFAULT_OPSET, metad
     proto = program.model_proto
     for k, name in ((0, "batch"), (2, "height"), (3, "width")):  # the exporter names them by formula
         proto.graph.output[0].type.tensor_type.shape.dim[k].dim_param = name
-    props = {"projreg_model_config": json.dumps(model.config, sort_keys=True), "projreg_version": __version__,
-             **(metadata or {})}  # fmt: skip
+    props = {
+        "projreg_model_config": json.dumps(model.config, sort_keys=True),
+        "projreg_version": __version__,
+        **(metadata or {}),
+    }
     for key, value in props.items():
         proto.metadata_props.add(key=key, value=str(value))
     try:

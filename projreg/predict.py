@@ -68,8 +68,9 @@ class Job:
 def require_suffix(path: Path, suffix: str, option: str) -> None:
     """Refuse an output name whose extension promises another format than the one written."""
     if path.suffix.lower() != suffix:
-        raise ProjregError(f"{option} {path}: this file is written as {suffix[1:].upper()}; "
-                           f"give a name ending in {suffix}")  # fmt: skip
+        raise ProjregError(
+            f"{option} {path}: this file is written as {suffix[1:].upper()}; give a name ending in {suffix}"
+        )
 
 
 def refuse_overwriting_inputs(outputs: list[tuple[str, Path | None]], inputs: list[tuple[str, Path]]) -> None:
@@ -101,15 +102,18 @@ def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> l
     projected, captured, out = Path(projected), Path(captured), Path(out)
     if not projected.is_dir():
         if captured.is_dir():
-            raise ProjregError(f"--projected {projected} is a file but --captured {captured} is a folder; "
-                               "give two files or two folders")  # fmt: skip
+            raise ProjregError(
+                f"--projected {projected} is a file but --captured {captured} is a folder; "
+                "give two files or two folders"
+            )
         require_suffix(out, ".exr", "--out")
         if viz is not None:
             require_suffix(Path(viz), ".png", "--viz")
         return [Job(projected, captured, out, viz, projected.name)]
     if not captured.is_dir():
-        raise ProjregError(f"--projected {projected} is a folder but --captured {captured} is not; "
-                           "give two files or two folders")  # fmt: skip
+        raise ProjregError(
+            f"--projected {projected} is a folder but --captured {captured} is not; give two files or two folders"
+        )
     try:
         rel0 = [p.relative_to(projected).as_posix() for p in list_images(projected, "--projected")]
         rel1 = [p.relative_to(captured).as_posix() for p in list_images(captured, "--captured")]
@@ -118,21 +122,32 @@ def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> l
     set0, set1 = set(rel0), set(rel1)
     for rel in rel0:
         if rel not in set1:
-            raise ProjregError(f"{projected / rel}: no captured partner {captured / rel}; "
-                               "pairs match by identical relative file names")  # fmt: skip
+            raise ProjregError(
+                f"{projected / rel}: no captured partner {captured / rel}; pairs match by identical relative file names"
+            )
     for rel in rel1:
         if rel not in set0:
-            raise ProjregError(f"{captured / rel}: no projected partner {projected / rel}; "
-                               "pairs match by identical relative file names")  # fmt: skip
+            raise ProjregError(
+                f"{captured / rel}: no projected partner {projected / rel}; "
+                "pairs match by identical relative file names"
+            )
     jobs, seen = [], {}
     for rel in rel0:
         stem = Path(rel).with_suffix("").as_posix() + "_flow"
         if stem in seen:
-            raise ProjregError(f"{projected / rel} and {projected / seen[stem]} would both write {out / stem}.exr; "
-                               "rename one")  # fmt: skip
+            raise ProjregError(
+                f"{projected / rel} and {projected / seen[stem]} would both write {out / stem}.exr; rename one"
+            )
         seen[stem] = rel
-        jobs.append(Job(projected / rel, captured / rel, out / f"{stem}.exr",
-                        None if viz is None else Path(viz) / f"{stem}.png", rel))  # fmt: skip
+        jobs.append(
+            Job(
+                projected / rel,
+                captured / rel,
+                out / f"{stem}.exr",
+                None if viz is None else Path(viz) / f"{stem}.png",
+                rel,
+            )
+        )
     return jobs
 
 
@@ -188,18 +203,20 @@ def predict(
         except ProjsynthError as e:
             raise ProjregError(str(e)) from None
     if track and not Path(projected).is_dir():
-        raise ProjregError(f"--track: --projected {projected} is a file; give two folders of frames (taken in "
-                           "name order)")  # fmt: skip
+        raise ProjregError(
+            f"--track: --projected {projected} is a file; give two folders of frames (taken in name order)"
+        )
     if track and not refine:
         raise ProjregError("--track follows each frame with the refinement; drop --no-refine")
     if track and batch_size > 1:
         raise ProjregError("--track registers frame after frame; drop --batch-size")
     jobs = plan_jobs(projected, captured, out, viz)
     weights = model if backend == "onnxruntime" else resolve_checkpoint(model)
-    refuse_overwriting_inputs([(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
-                              [(opt, p) for j in jobs for opt, p in (("--projected", j.projected),
-                                                                     ("--captured", j.captured))]
-                              + ([("--model", Path(weights))] if weights is not None else []))  # fmt: skip
+    refuse_overwriting_inputs(
+        [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
+        [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
+        + ([("--model", Path(weights))] if weights is not None else []),
+    )
     net = open_network(weights, backend=backend, device=device, precision=precision)
     if fast:
         max_side = min(max_side, FAST_MAX_SIDE)
@@ -212,6 +229,7 @@ def predict(
         pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
         flows = flows_resized(net, [(a, resize_to(b, a.shape)) for a, b in pairs], max_side, batch_size)
         for job, (img0, img1), flow in zip(chunk, pairs, flows, strict=True):
+
             def register(a: np.ndarray, b: np.ndarray, flow: np.ndarray = flow) -> Prediction:
                 return Prediction(flow) if refiner is None else refiner.predict(a, b, flow)
 
@@ -249,8 +267,11 @@ def _write(job: Job, pred: Prediction, refined: bool, max_flow: float | None, tr
     """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
     written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``)."""
     valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
-    attrs = {"registered": "yes" if pred.registered else "no", "claimed": f"{valid.mean():.4f}",
-             "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)"}  # fmt: skip
+    attrs = {
+        "registered": "yes" if pred.registered else "no",
+        "claimed": f"{valid.mean():.4f}",
+        "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)",
+    }
     if pred.reason:
         attrs["reason"] = pred.reason
     if tracking:

@@ -207,8 +207,10 @@ class GeometricRefiner:
         """
         h, w = projected.shape[:2]
         if projected.shape != captured.shape or projected.ndim != 3 or flow.shape != (h, w, 2):
-            raise ProjregError(f"refine needs projected, captured (H, W, 3) and flow (H, W, 2) of one size, got "
-                               f"{projected.shape}, {captured.shape}, {flow.shape}")  # fmt: skip
+            raise ProjregError(
+                f"refine needs projected, captured (H, W, 3) and flow (H, W, 2) of one size, got "
+                f"{projected.shape}, {captured.shape}, {flow.shape}"
+            )
         flow = np.asarray(flow, np.float32)
         if self.config.max_side is not None and max(h, w) > self.config.max_side:
             return self._predict_shrunk(projected, captured, flow, identity)
@@ -593,8 +595,9 @@ def compose(base: np.ndarray, residual: np.ndarray) -> np.ndarray:
     under the returned flow: ``r(p) + base(p + r(p))``.
     """
     x, y = pixel_maps(*base.shape[:2])
-    moved = cv2.remap(base, x + residual[..., 0], y + residual[..., 1], cv2.INTER_LINEAR,
-                      borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    moved = cv2.remap(
+        base, x + residual[..., 0], y + residual[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+    )
     return (residual + moved).astype(np.float32)
 
 
@@ -608,8 +611,7 @@ def texture_weight(gray: np.ndarray, floor: float = 0.0, sigma: float = 3.0) -> 
     pixel (a Sobel derivative is 8 times the slope).
     """
     g = gray.astype(np.float32)
-    energy = cv2.GaussianBlur(cv2.Sobel(g, cv2.CV_32F, 1, 0) ** 2 + cv2.Sobel(g, cv2.CV_32F, 0, 1) ** 2,
-                              (0, 0), sigma)  # fmt: skip
+    energy = cv2.GaussianBlur(cv2.Sobel(g, cv2.CV_32F, 1, 0) ** 2 + cv2.Sobel(g, cv2.CV_32F, 0, 1) ** 2, (0, 0), sigma)
     return np.minimum(energy / (max(float(np.median(energy)), floor) + 1e-3), 1.0)
 
 

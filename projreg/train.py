@@ -76,17 +76,22 @@ class TrainConfig:
     init: str | None = None  # a checkpoint (or "reference") whose weights start the run: a fine-tune
 
     def validate(self) -> None:
-        checks = [(self.steps >= 1, "--steps must be >= 1"), (self.batch_size >= 1, "--batch-size must be >= 1"),
-                  (self.steps <= self.schedule_steps, f"--steps {self.steps} exceeds --schedule-steps "
-                   f"{self.schedule_steps}; raise --schedule-steps"),
-                  (0 <= self.warmup_steps < self.schedule_steps, "--warmup-steps must be in [0, --schedule-steps)"),
-                  (0 < self.lr < math.inf, "--lr must be finite and > 0"),
-                  (0 <= self.seed < 2**32, f"--seed must be in 0..{2**32 - 1} (numpy's seed range)"),
-                  (self.workers >= 0, "--workers must be >= 0"),
-                  (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
-                  (self.val_every >= 1 or not self.val, "--val-every must be >= 1"),
-                  (self.val_samples >= 1, "--val-samples must be >= 1"),
-                  (0 < self.gamma <= 1, "--gamma must be in (0, 1]")]  # fmt: skip
+        checks = [
+            (self.steps >= 1, "--steps must be >= 1"),
+            (self.batch_size >= 1, "--batch-size must be >= 1"),
+            (
+                self.steps <= self.schedule_steps,
+                f"--steps {self.steps} exceeds --schedule-steps {self.schedule_steps}; raise --schedule-steps",
+            ),
+            (0 <= self.warmup_steps < self.schedule_steps, "--warmup-steps must be in [0, --schedule-steps)"),
+            (0 < self.lr < math.inf, "--lr must be finite and > 0"),
+            (0 <= self.seed < 2**32, f"--seed must be in 0..{2**32 - 1} (numpy's seed range)"),
+            (self.workers >= 0, "--workers must be >= 0"),
+            (self.ckpt_every >= 1 and self.log_every >= 1, "--ckpt-every and --log-every must be >= 1"),
+            (self.val_every >= 1 or not self.val, "--val-every must be >= 1"),
+            (self.val_samples >= 1, "--val-samples must be >= 1"),
+            (0 < self.gamma <= 1, "--gamma must be in (0, 1]"),
+        ]
         for ok, msg in checks:
             if not ok:
                 raise ProjregError(msg)
@@ -101,10 +106,13 @@ def initial_weights(spec: str, model: SSJMFlow) -> dict:
         raise ProjregError(f"--init {spec}: no shipped reference model here; pass a checkpoint file") from None
     ckpt = require_model(load_checkpoint(path), path)
     if ckpt["model_config"] != model.config:
-        diff = sorted(k for k in {*ckpt["model_config"], *model.config}
-                      if ckpt["model_config"].get(k) != model.config.get(k))  # fmt: skip
-        raise ProjregError(f"--init {spec}: its network differs from --model's in {', '.join(diff)}; "
-                           "pass the --model (and --no-ssjm) it was trained with")  # fmt: skip
+        diff = sorted(
+            k for k in {*ckpt["model_config"], *model.config} if ckpt["model_config"].get(k) != model.config.get(k)
+        )
+        raise ProjregError(
+            f"--init {spec}: its network differs from --model's in {', '.join(diff)}; "
+            "pass the --model (and --no-ssjm) it was trained with"
+        )
     return ckpt["model"]
 
 
@@ -165,8 +173,13 @@ class _Log:
 _RESUME_KEYS = ("model", "optimizer", "scheduler", "rng", "step", "best_epe", "train_config")
 
 
-def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, float], None] | None = None,
-          val_progress: Callable[[int, int], None] | None = None) -> dict:
+def train(
+    cfg: TrainConfig,
+    *,
+    resume: bool = False,
+    progress: Callable[[int, float], None] | None = None,
+    val_progress: Callable[[int, int], None] | None = None,
+) -> dict:
     """Train ``cfg.model`` on ``cfg.data``.
 
     SIGINT or SIGTERM (Ctrl-C, a scheduler's stop) ends the run after the step in flight, with
@@ -185,8 +198,13 @@ def train(cfg: TrainConfig, *, resume: bool = False, progress: Callable[[int, fl
         return _train(cfg, resume, progress, val_progress, stop)
 
 
-def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None] | None,
-           val_progress: Callable[[int, int], None] | None, stop: _StopSignal) -> dict:
+def _train(
+    cfg: TrainConfig,
+    resume: bool,
+    progress: Callable[[int, float], None] | None,
+    val_progress: Callable[[int, int], None] | None,
+    stop: _StopSignal,
+) -> dict:
     cfg.validate()
     distributed = launched_by_torchrun()
     device = process_device()
@@ -220,17 +238,32 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
         ck = load_checkpoint(last_path)
         missing = [k for k in _RESUME_KEYS if not isinstance(ck, dict) or k not in ck]
         if missing:
-            raise ProjregError(f"--resume: {last_path} lacks {', '.join(missing)} (an exported checkpoint?); "
-                               "resume needs the last.pt that `projreg train` wrote")  # fmt: skip
+            raise ProjregError(
+                f"--resume: {last_path} lacks {', '.join(missing)} (an exported checkpoint?); "
+                "resume needs the last.pt that `projreg train` wrote"
+            )
         old = ck["train_config"]
-        for key, option in (("model", "--model"), ("use_ssjm", "--no-ssjm"), ("schedule_steps", "--schedule-steps"),
-                            ("warmup_steps", "--warmup-steps"), ("lr", "--lr"), ("batch_size", "--batch-size"),
-                            ("seed", "--seed"), ("data", "--data"), ("crop", "--crop"), ("gamma", "gamma"),
-                            ("weight_decay", "weight decay"), ("grad_clip", "gradient clipping"),
-                            ("amp", "--amp"), ("init", "--init")):  # fmt: skip
+        for key, option in (
+            ("model", "--model"),
+            ("use_ssjm", "--no-ssjm"),
+            ("schedule_steps", "--schedule-steps"),
+            ("warmup_steps", "--warmup-steps"),
+            ("lr", "--lr"),
+            ("batch_size", "--batch-size"),
+            ("seed", "--seed"),
+            ("data", "--data"),
+            ("crop", "--crop"),
+            ("gamma", "gamma"),
+            ("weight_decay", "weight decay"),
+            ("grad_clip", "gradient clipping"),
+            ("amp", "--amp"),
+            ("init", "--init"),
+        ):
             if _plain(old.get(key), key) != _plain(getattr(cfg, key), key):
-                raise ProjregError(f"--resume: {last_path} was trained with {option} {old.get(key)}, not "
-                                   f"{getattr(cfg, key)}; resume with the same value")  # fmt: skip
+                raise ProjregError(
+                    f"--resume: {last_path} was trained with {option} {old.get(key)}, not "
+                    f"{getattr(cfg, key)}; resume with the same value"
+                )
         if int(ck["step"]) > cfg.steps:
             raise ProjregError(f"--resume: {last_path} is already at step {ck['step']} > --steps {cfg.steps}")
         model.load_state_dict(ck["model"])
@@ -239,9 +272,15 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
         _set_rng_state(ck["rng"])
         step, best = int(ck["step"]), float(ck["best_epe"])
     sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
-    loader = DataLoader(train_ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.workers,
-                        pin_memory=device.type == "cuda", drop_last=True,
-                        worker_init_fn=_ignore_interrupts)  # fmt: skip
+    loader = DataLoader(
+        train_ds,
+        batch_size=cfg.batch_size,
+        sampler=sampler,
+        num_workers=cfg.workers,
+        pin_memory=device.type == "cuda",
+        drop_last=True,
+        worker_init_fn=_ignore_interrupts,
+    )
     batches = iter(loader)
     batches = itertools.chain([_next_batch(batches)], batches)  # a bad first batch leaves --out untouched
     if rank == 0:
@@ -262,11 +301,24 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
     def checkpoint(path: Path) -> None:
         bad = _non_finite(model, opt)
         if bad is not None:
-            raise ProjregError(f"non-finite {bad} after step {step} (--lr too high?); stopped without writing "
-                               f"{path.name}, {_last_good(last_path)}")  # fmt: skip
-        atomic_save({"model": model.state_dict(), "model_config": model.config, "optimizer": opt.state_dict(),
-                      "scheduler": sched.state_dict(), "rng": _rng_state(), "step": step, "best_epe": best,
-                      "train_config": asdict(cfg), "version": __version__}, path)  # fmt: skip
+            raise ProjregError(
+                f"non-finite {bad} after step {step} (--lr too high?); stopped without writing "
+                f"{path.name}, {_last_good(last_path)}"
+            )
+        atomic_save(
+            {
+                "model": model.state_dict(),
+                "model_config": model.config,
+                "optimizer": opt.state_dict(),
+                "scheduler": sched.state_dict(),
+                "rng": _rng_state(),
+                "step": step,
+                "best_epe": best,
+                "train_config": asdict(cfg),
+                "version": __version__,
+            },
+            path,
+        )
 
     t0, seen, last_loss, start = time.perf_counter(), 0, float("nan"), step
     stats = _Interval(device)  # device-side sums: the host waits for the GPU once per log interval
@@ -314,9 +366,14 @@ def _train(cfg: TrainConfig, resume: bool, progress: Callable[[int, float], None
             progress(step, last_loss)
     if stop.signal is not None and rank == 0:
         checkpoint(last_path)  # the state after the last finished step: --resume continues from it
-    summary = {"step": step, "loss": None if step == start else last_loss,
-               "best_epe": None if math.isinf(best) else best, "steps_run": step - start,
-               "interrupted": stop.signal, "checkpoint": str(last_path)}  # fmt: skip
+    summary = {
+        "step": step,
+        "loss": None if step == start else last_loss,
+        "best_epe": None if math.isinf(best) else best,
+        "steps_run": step - start,
+        "interrupted": stop.signal,
+        "checkpoint": str(last_path),
+    }
     if distributed:
         _record_ddp_agreement(model, out, rank, world, device)
         dist.destroy_process_group()
@@ -412,15 +469,29 @@ def _schedule(opt: torch.optim.Optimizer, cfg: TrainConfig) -> torch.optim.lr_sc
     the same run as going to 60 at once.
     """
     return torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=cfg.lr, total_steps=cfg.schedule_steps + 1, pct_start=max(cfg.warmup_steps, 1) / cfg.schedule_steps,
-        cycle_momentum=False, anneal_strategy="linear")  # fmt: skip
+        opt,
+        max_lr=cfg.lr,
+        total_steps=cfg.schedule_steps + 1,
+        pct_start=max(cfg.warmup_steps, 1) / cfg.schedule_steps,
+        cycle_momentum=False,
+        anneal_strategy="linear",
+    )
 
 
 def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) -> None:
-    info = {"train_config": asdict(cfg), "model_config": model.config, "parameters": count_parameters(model),
-            "versions": {"projreg": __version__, "torch": torch.__version__, "numpy": np.__version__,
-                         "python": platform.python_version()},
-            "command": sys.argv, "resumed": resume}  # fmt: skip
+    info = {
+        "train_config": asdict(cfg),
+        "model_config": model.config,
+        "parameters": count_parameters(model),
+        "versions": {
+            "projreg": __version__,
+            "torch": torch.__version__,
+            "numpy": np.__version__,
+            "python": platform.python_version(),
+        },
+        "command": sys.argv,
+        "resumed": resume,
+    }
     path = out / "config.json"
     try:
         if resume and path.exists():  # keep the original, record the resume

@@ -46,17 +46,26 @@ class Command(TyperCommand):
 
 
 _METAVARS = {"int": "N", "float": "X", "str": "TEXT", "Path": "PATH"}
-PLAIN_HELP = {"rich_markup_mode": None, "add_completion": False, "no_args_is_help": True,
-              "pretty_exceptions_enable": False}  # fmt: skip
+PLAIN_HELP = {
+    "rich_markup_mode": None,
+    "add_completion": False,
+    "no_args_is_help": True,
+    "pretty_exceptions_enable": False,
+}
 
 app = typer.Typer(**PLAIN_HELP, help="Reproducible projector-camera pairs with exact ground-truth flow.")
 
 cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our own errors name the file
 
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
-MaxFlow = Annotated[float | None, typer.Option(help="Flow colours saturate at this magnitude in px, the "
-                                                    "same for every picture (default: each picture's largest).",
-                                               metavar="PX")]  # fmt: skip
+MaxFlow = Annotated[
+    float | None,
+    typer.Option(
+        help="Flow colours saturate at this magnitude in px, the "
+        "same for every picture (default: each picture's largest).",
+        metavar="PX",
+    ),
+]
 
 
 def output_path(text: str) -> Path:
@@ -84,8 +93,15 @@ class Bar:
     """
 
     def __init__(self, desc: str, quiet: bool, unit: str = "sample", total: int | None = None):
-        self.kwargs = {"desc": desc, "unit": unit, "disable": quiet or not is_rank0(), "file": sys.stderr,
-                       "leave": False, "dynamic_ncols": True, "total": total}  # fmt: skip
+        self.kwargs = {
+            "desc": desc,
+            "unit": unit,
+            "disable": quiet or not is_rank0(),
+            "file": sys.stderr,
+            "leave": False,
+            "dynamic_ncols": True,
+            "total": total,
+        }
         self.bar: tqdm | None = None
 
     def _get(self) -> tqdm:
@@ -130,49 +146,85 @@ SPLIT_HELP = "train, val or test (disjoint source images), or all (every image: 
 
 @app.command(cls=Command)
 def gen(
-    out: Annotated[Path, typer.Option(help="Dataset directory (created; re-running resumes).", parser=output_path,
-                                      metavar="DIR")],
+    out: Annotated[
+        Path, typer.Option(help="Dataset directory (created; re-running resumes).", parser=output_path, metavar="DIR")
+    ],
     natural: Annotated[Path | None, typer.Option(help="Folder of natural images (recursive).", metavar="DIR")] = None,
-    generated: Annotated[Path | None, typer.Option(help="Folder of generated/illustration images.",
-                                                   metavar="DIR")] = None,
+    generated: Annotated[
+        Path | None, typer.Option(help="Folder of generated/illustration images.", metavar="DIR")
+    ] = None,
     pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
     size: Annotated[str, typer.Option(help="Image size HxW.", metavar="HxW")] = "384x512",
     seed: Annotated[int, typer.Option(help="Seed of every random draw.", metavar="S")] = 0,
     split: Annotated[str, typer.Option(help=SPLIT_HELP, metavar="SPLIT")] = "train",
-    transforms: Annotated[str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).",
-                                                   metavar="SPEC")] = None,
-    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.",
-                                               metavar="FILE.toml")] = None,
-    shard_size: Annotated[int | None, typer.Option(help="Samples per shard (default 64, rounded down to whole "
-                                                        "sequences).", show_default=False, metavar="N")] = None,
-    shards: Annotated[str | None, typer.Option(help="Only these shards: 40-79, or 3/16 (array task 3 of 16).",
-                                               metavar="A-B|K/N")] = None,
+    transforms: Annotated[
+        str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).", metavar="SPEC")
+    ] = None,
+    table: Annotated[
+        Path | None, typer.Option(help="TOML transform table replacing the built-in one.", metavar="FILE.toml")
+    ] = None,
+    shard_size: Annotated[
+        int | None,
+        typer.Option(
+            help="Samples per shard (default 64, rounded down to whole sequences).", show_default=False, metavar="N"
+        ),
+    ] = None,
+    shards: Annotated[
+        str | None, typer.Option(help="Only these shards: 40-79, or 3/16 (array task 3 of 16).", metavar="A-B|K/N")
+    ] = None,
     workers: Annotated[int, typer.Option(help="Worker processes.", metavar="K")] = 1,
-    blend: Annotated[str, typer.Option(help="Photometric model: paper or physical.",
-                                       metavar="paper|physical")] = "paper",
-    frames: Annotated[int, typer.Option(help="Frames per sequence: > 1 moves the rig (docs/format.md).",
-                                        metavar="N")] = 1,
-    motion: Annotated[str | None, typer.Option(help="Sequences: hover, gust, vibration or orbit (default "
-                                                    "hover).", show_default=False, metavar="PRESET")] = None,
+    blend: Annotated[
+        str, typer.Option(help="Photometric model: paper or physical.", metavar="paper|physical")
+    ] = "paper",
+    frames: Annotated[
+        int, typer.Option(help="Frames per sequence: > 1 moves the rig (docs/format.md).", metavar="N")
+    ] = 1,
+    motion: Annotated[
+        str | None,
+        typer.Option(
+            help="Sequences: hover, gust, vibration or orbit (default hover).", show_default=False, metavar="PRESET"
+        ),
+    ] = None,
     quiet: Quiet = False,
 ) -> None:
     """Generate shards of (projected, captured, flow) samples."""
     try:
-        plan = resolve_plan(size=parse_size(size), seed=seed, split=split, pairs=pairs, transforms=transforms,
-                            blend=blend, table_path=table, natural=natural, generated=generated, frames=frames,
-                            motion=motion)  # fmt: skip
+        plan = resolve_plan(
+            size=parse_size(size),
+            seed=seed,
+            split=split,
+            pairs=pairs,
+            transforms=transforms,
+            blend=blend,
+            table_path=table,
+            natural=natural,
+            generated=generated,
+            frames=frames,
+            motion=motion,
+        )
         shard_size = default_shard_size(plan.frames) if shard_size is None else shard_size
         for line in plan.skipped:
             typer.echo(f"projsynth: warning: skipped {line}", err=True)
         with Bar("gen", quiet) as bar:  # --shards: sized to the selected shards
-            result = generate(plan, out, shard_size=shard_size, shards=shards, workers=workers, progress=bar.update,
-                              progress_total=bar.total, status=_status)  # fmt: skip
+            result = generate(
+                plan,
+                out,
+                shard_size=shard_size,
+                shards=shards,
+                workers=workers,
+                progress=bar.update,
+                progress_total=bar.total,
+                status=_status,
+            )
     except ProjsynthError as e:
         raise _fail(e) from None
     if not quiet:
         state = "complete, manifest written" if result.manifest else "manifest pending (run `projsynth merge`)"
-        typer.echo(f"{out}: {len(result.written)} shards written, {len(result.skipped)} already done, "
-                   f"{result.num_shards} in the plan; {state}", err=True)  # fmt: skip
+        typer.echo(
+            f"{out}: {len(result.written)} shards written, {len(result.skipped)} already done, "
+            f"{result.num_shards} in the plan; {state}",
+            err=True,
+        )
 
 
 @app.command("merge", cls=Command)
@@ -186,8 +238,9 @@ def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.", me
 
 
 @app.command(cls=Command)
-def verify(root: Annotated[Path, typer.Argument(help="Dataset directory.",
-                                                metavar="DIR")], quiet: Quiet = False) -> None:
+def verify(
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")], quiet: Quiet = False
+) -> None:
     """Check schema, hashes, NaN/Inf and flow/valid consistency; exit 1 naming each bad shard."""
     try:
         with Bar("verify", quiet) as bar:
@@ -227,15 +280,18 @@ def inspect_table(report: dict) -> list[str]:
     c = report["config"]
     size = "x".join(map(str, c.get("size", []))) or "?"
     about = [f"{report['total']['samples']} samples", f"size {size}"] + [
-        f"{k} {c[k]}" for k in ("seed", "split", "pairs", "blend", "table_version") if k in c]  # fmt: skip
+        f"{k} {c[k]}" for k in ("seed", "split", "pairs", "blend", "table_version") if k in c
+    ]
     lines = [f"{report['dataset']}: " + ", ".join(about), ""]
     rows = [*report["families"].items(), ("TOTAL", report["total"])]
     n = max(len(name) for name, _ in rows)
     lines.append(f"{'family':{n}s} {'samples':>7s} {'valid':>6s}  {'s0-10':>6s} {'s10-40':>6s} {'s40+':>6s}")
     for name, r in rows:
         b = r["bucket_share"]
-        lines.append(f"{name:{n}s} {r['samples']:7d} {r['valid_share']:6.1%}  {b['s0-10']:6.1%} "
-                     f"{b['s10-40']:6.1%} {b['s40+']:6.1%}")  # fmt: skip
+        lines.append(
+            f"{name:{n}s} {r['samples']:7d} {r['valid_share']:6.1%}  {b['s0-10']:6.1%} "
+            f"{b['s10-40']:6.1%} {b['s40+']:6.1%}"
+        )
     edges = report["histogram_edges_px"]
     bins = [f"{a}-{b}" if b is not None else f"{a}+" for a, b in zip(edges[:-1], edges[1:], strict=True)]
     lines += ["", "flow magnitude histogram (px), share of valid pixels:"]
@@ -261,8 +317,7 @@ def export(
     """Write PNGs, the flow .exr bytes unchanged, Middlebury .flo and a colour visualisation."""
     try:
         with Bar("export", quiet) as bar:
-            n = export_samples(root, out, limit, progress=bar.update, progress_total=bar.total,
-                               max_flow=max_flow)  # fmt: skip
+            n = export_samples(root, out, limit, progress=bar.update, progress_total=bar.total, max_flow=max_flow)
     except ProjsynthError as e:
         raise _fail(e) from None
     if not quiet:
@@ -288,8 +343,9 @@ def preview(
 def transforms_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     as_toml: Annotated[bool, typer.Option("--toml", help="Print TOML (editable, for --table).")] = False,
-    table: Annotated[Path | None, typer.Option(help="Show this TOML table instead of the built-in one.",
-                                               metavar="FILE.toml")] = None,
+    table: Annotated[
+        Path | None, typer.Option(help="Show this TOML table instead of the built-in one.", metavar="FILE.toml")
+    ] = None,
 ) -> None:
     """Print the transform table (160 configurations by default)."""
     try:
@@ -301,9 +357,18 @@ def transforms_cmd(
     if as_toml:
         typer.echo(table_to_toml(tab))
     elif as_json:
-        rows = [{"id": c.id, "name": c.name, "family": c.family, "severity": c.severity,
-                 "condition": c.condition, "geometry": c.geometry, "photometry": c.photometry}
-                for c in tab.configs]  # fmt: skip
+        rows = [
+            {
+                "id": c.id,
+                "name": c.name,
+                "family": c.family,
+                "severity": c.severity,
+                "condition": c.condition,
+                "geometry": c.geometry,
+                "photometry": c.photometry,
+            }
+            for c in tab.configs
+        ]
         typer.echo(json.dumps({"version": tab.version, "transforms": rows}, indent=1))
     else:
         typer.echo(f"table {tab.version}: {len(tab)} configurations")
@@ -314,8 +379,12 @@ def transforms_cmd(
 
 @app.command(cls=Command)
 def patterns(
-    kind: Annotated[str, typer.Option(help="graycode (dense, sub-pixel) or dots (the paper's 11-image protocol).",
-                                      metavar="graycode|dots")],
+    kind: Annotated[
+        str,
+        typer.Option(
+            help="graycode (dense, sub-pixel) or dots (the paper's 11-image protocol).", metavar="graycode|dots"
+        ),
+    ],
     size: Annotated[str, typer.Option(help="Projector frame HxW.", metavar="HxW")],
     out: Annotated[Path, typer.Option(help="Folder for the PNGs (NN-<name>.png) and patterns.json.", metavar="DIR")],
     grid: Annotated[str, typer.Option(help="dots: dot grid ROWSxCOLS.", metavar="ROWSxCOLS")] = "20x20",
@@ -332,22 +401,29 @@ def patterns(
 
 @app.command(cls=Command)
 def capture(
-    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.",
-                                               metavar="DIR")],
+    patterns_dir: Annotated[
+        Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
+    ],
     out: Annotated[Path, typer.Option(help="Folder for the photos, truth.exr and capture.json.", metavar="DIR")],
-    transform: Annotated[int, typer.Option(help="Transform id of the scene (see `projsynth transforms`).",
-                                           metavar="ID")],
+    transform: Annotated[
+        int, typer.Option(help="Transform id of the scene (see `projsynth transforms`).", metavar="ID")
+    ],
     seed: Annotated[int, typer.Option(help="Seed of the scene, photometry and noise.", metavar="S")] = 0,
-    camera_size: Annotated[str | None, typer.Option(help="Camera frame HxW (default: the projector's).",
-                                                    metavar="HxW")] = None,
-    content: Annotated[list[Path] | None, typer.Option(help="Picture to photograph too (repeatable).",
-                                                       metavar="IMG")] = None,
-    background: Annotated[Path | None, typer.Option(help="Surface as the camera sees it (default: built-in).",
-                                                    metavar="IMG")] = None,
-    blend: Annotated[str, typer.Option(help="Photometric model: physical (gamma, response) or paper.",
-                                       metavar="physical|paper")] = "physical",
-    table: Annotated[Path | None, typer.Option(help="TOML transform table replacing the built-in one.",
-                                               metavar="FILE.toml")] = None,
+    camera_size: Annotated[
+        str | None, typer.Option(help="Camera frame HxW (default: the projector's).", metavar="HxW")
+    ] = None,
+    content: Annotated[
+        list[Path] | None, typer.Option(help="Picture to photograph too (repeatable).", metavar="IMG")
+    ] = None,
+    background: Annotated[
+        Path | None, typer.Option(help="Surface as the camera sees it (default: built-in).", metavar="IMG")
+    ] = None,
+    blend: Annotated[
+        str, typer.Option(help="Photometric model: physical (gamma, response) or paper.", metavar="physical|paper")
+    ] = "physical",
+    table: Annotated[
+        Path | None, typer.Option(help="TOML transform table replacing the built-in one.", metavar="FILE.toml")
+    ] = None,
 ) -> None:
     """Virtual rig: photograph the patterns (and pictures) through one simulated scene, with exact truth."""
     try:
@@ -377,12 +453,15 @@ class _PairCommand(Command):
 
 @app.command(cls=_PairCommand)
 def decode(
-    patterns_dir: Annotated[Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.",
-                                               metavar="DIR")],
-    captures: Annotated[Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).",
-                                           metavar="DIR")],
-    out: Annotated[Path, typer.Option(help="Folder for correspondence.exr (and the dataset with --pair).",
-                                      metavar="DIR")],
+    patterns_dir: Annotated[
+        Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
+    ],
+    captures: Annotated[
+        Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).", metavar="DIR")
+    ],
+    out: Annotated[
+        Path, typer.Option(help="Folder for correspondence.exr (and the dataset with --pair).", metavar="DIR")
+    ],
     pair: Annotated[list[Any] | None, typer.Option(metavar="PROJECTED CAPTURED", help=PAIR_HELP)] = None,
 ) -> None:
     """Decode pattern photos into the projector -> camera correspondence (and a dataset of pairs)."""

@@ -75,9 +75,7 @@ class Plan:
             "blend": self.blend,
             "table_version": self.table.version,
             "table_digest": self.table.digest(),
-            "sources": None
-            if self.sources is None
-            else {k: [s.name for s in v] for k, v in self.sources.items()},
+            "sources": None if self.sources is None else {k: [s.name for s in v] for k, v in self.sources.items()},
         } | ({"frames": self.frames, "motion": self.motion} if self.frames > 1 else {})
 
     def config_hash(self) -> str:
@@ -85,8 +83,19 @@ class Plan:
 
 
 # The keys of ``Plan.describe()``: what ``config_hash`` covers (a manifest's copy of them must hash to it)
-PLAN_KEYS = ("format_version", "generator", "size", "seed", "split", "pairs", "transforms", "blend",
-             "table_version", "table_digest", "sources")  # fmt: skip
+PLAN_KEYS = (
+    "format_version",
+    "generator",
+    "size",
+    "seed",
+    "split",
+    "pairs",
+    "transforms",
+    "blend",
+    "table_version",
+    "table_digest",
+    "sources",
+)
 
 
 # Sequence datasets add these to the plan (absent from single-frame plans, whose hash stays as it was).
@@ -175,8 +184,10 @@ def resolve_plan(
         short = [k for k in KINDS if len(chosen[k]) == n]
         why = f"; {len(skipped)} unreadable file(s) skipped, e.g. {skipped[0]}" if skipped else ""
         fix = "add images to the folder" if n == 0 or pairs is None else "lower --pairs or add images"
-        raise ProjsynthError(f"--{short[0]}: the {split} split has only {n} usable {short[0]} image(s) "
-                             f"for {pairs or 'at least 1'} pair(s){why}; {fix}")  # fmt: skip
+        raise ProjsynthError(
+            f"--{short[0]}: the {split} split has only {n} usable {short[0]} image(s) "
+            f"for {pairs or 'at least 1'} pair(s){why}; {fix}"
+        )
     chosen = {k: v[:n] for k, v in chosen.items()}
     return Plan(size, seed, split, n, selected, blend, table, chosen, tuple(skipped), **seq)
 
@@ -267,15 +278,25 @@ def sample_scene(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict]
     if plan.frames == 1:
         return SampleScene(projected, background, scene, geometry, photometry, rng)
     key = (SPLITS.index(plan.split), pair, role, tid)
-    path = draw_trajectory(plan.motion, plan.frames, np.random.default_rng(np.random.SeedSequence(
-        plan.seed, spawn_key=(_MOTION, *key))))  # fmt: skip
+    path = draw_trajectory(
+        plan.motion, plan.frames, np.random.default_rng(np.random.SeedSequence(plan.seed, spawn_key=(_MOTION, *key)))
+    )
     frame = k % plan.frames
     t = frame / FRAME_RATE_HZ
     noise = np.random.default_rng(np.random.SeedSequence(plan.seed, spawn_key=(_NOISE, *key, frame)))
     offsets = path.exposure()
     exposure = tuple(moved_scene(scene, *path.pose(t + dt)) for dt in offsets) if len(offsets) > 1 else ()
-    return SampleScene(projected, background, moved_scene(scene, *path.pose(t)), geometry, photometry, rng,
-                       exposure, noise, path.describe(t))  # fmt: skip
+    return SampleScene(
+        projected,
+        background,
+        moved_scene(scene, *path.pose(t)),
+        geometry,
+        photometry,
+        rng,
+        exposure,
+        noise,
+        path.describe(t),
+    )
 
 
 def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] | None = None) -> Sample:
@@ -292,10 +313,19 @@ def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] 
         "pair": pair,
         "role": ROLES[role],
         "transform_id": tid,
-        "transform": {"name": cfg.name, "family": cfg.family, "severity": cfg.severity,
-                      "condition": cfg.condition, "table_version": plan.table.version},
-        "sources": {"projected": origin[KINDS[role]][0], "background": origin[KINDS[1 - role]][0],
-                    "projected_theme": origin[KINDS[role]][1], "background_theme": origin[KINDS[1 - role]][1]},
+        "transform": {
+            "name": cfg.name,
+            "family": cfg.family,
+            "severity": cfg.severity,
+            "condition": cfg.condition,
+            "table_version": plan.table.version,
+        },
+        "sources": {
+            "projected": origin[KINDS[role]][0],
+            "background": origin[KINDS[1 - role]][0],
+            "projected_theme": origin[KINDS[role]][1],
+            "background_theme": origin[KINDS[1 - role]][1],
+        },
         "geometry": geometry,
         "photometry": photometry,
         "blend": plan.blend,
@@ -303,6 +333,10 @@ def make_sample(plan: Plan, k: int, images: tuple[np.ndarray, np.ndarray, dict] 
         "stats": out.stats,
     }
     if plan.frames > 1:
-        params |= {"sequence": sequence_id(plan, k), "frame": k % plan.frames, "frames": plan.frames,
-                   "motion": s.motion}  # fmt: skip
+        params |= {
+            "sequence": sequence_id(plan, k),
+            "frame": k % plan.frames,
+            "frames": plan.frames,
+            "motion": s.motion,
+        }
     return Sample(k, params["sample_id"], projected, out.captured, out.flow, out.valid, params)

@@ -114,14 +114,21 @@ def generate(
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
     if shard_size % plan.frames:
-        raise ProjsynthError(f"--shard-size: {shard_size} is not a multiple of --frames {plan.frames} (a shard holds "
-                             f"whole sequences); use e.g. {default_shard_size(plan.frames)}")  # fmt: skip
+        raise ProjsynthError(
+            f"--shard-size: {shard_size} is not a multiple of --frames {plan.frames} (a shard holds "
+            f"whole sequences); use e.g. {default_shard_size(plan.frames)}"
+        )
     if workers < 1:
         raise ProjsynthError(f"--workers: must be >= 1, got {workers}")
     num_shards = -(-plan.num_samples // shard_size)
     todo_range = parse_shard_range(shards, num_shards)
-    info = {**plan.describe(), "config_hash": plan.config_hash(), "shard_size": shard_size,
-            "num_shards": num_shards, "skipped_sources": list(plan.skipped)}  # fmt: skip
+    info = {
+        **plan.describe(),
+        "config_hash": plan.config_hash(),
+        "shard_size": shard_size,
+        "num_shards": num_shards,
+        "skipped_sources": list(plan.skipped),
+    }
     _prepare_dir(out, info)
     with claim_shards(out, todo_range):
         todo, done = [], []
@@ -154,8 +161,10 @@ def merge(out: Path) -> dict:
         raise ProjsynthError(f"{out / PLAN_FILE}: not a projsynth plan; regenerate the dataset")
     missing = [j for j in range(info["num_shards"]) if not shard_is_complete(out / shard_name(j), info["config_hash"])]
     if missing:
-        raise ProjsynthError(f"{out}: {len(missing)} of {info['num_shards']} shards missing or incomplete "
-                             f"(first: {shard_name(missing[0])}); generate them with --shards")  # fmt: skip
+        raise ProjsynthError(
+            f"{out}: {len(missing)} of {info['num_shards']} shards missing or incomplete "
+            f"(first: {shard_name(missing[0])}); generate them with --shards"
+        )
     return assemble_manifest(out, info, info["num_shards"], info["shard_size"])
 
 
@@ -171,14 +180,20 @@ def _prepare_dir(out: Path, info: dict) -> None:
         except ProjsynthError:
             old = {}
         if old.get("generator", info["generator"]) != info["generator"]:
-            raise ProjsynthError(f"--out {out}: holds a dataset made by {old['generator']}, whose samples differ from "
-                                 f"{info['generator']}'s; use a new --out, or delete it to regenerate")  # fmt: skip
+            raise ProjsynthError(
+                f"--out {out}: holds a dataset made by {old['generator']}, whose samples differ from "
+                f"{info['generator']}'s; use a new --out, or delete it to regenerate"
+            )
         if old.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
-            raise ProjsynthError(f"--out {out}: holds a format {old['format_version']} dataset, this projsynth "
-                                 f"writes format {FORMAT_VERSION}; use a new --out (the old one stays readable)")
+            raise ProjsynthError(
+                f"--out {out}: holds a format {old['format_version']} dataset, this projsynth "
+                f"writes format {FORMAT_VERSION}; use a new --out (the old one stays readable)"
+            )
         if old.get("config_hash") != info["config_hash"] or old.get("shard_size") != info["shard_size"]:
-            raise ProjsynthError(f"--out {out}: holds a dataset made with other options (see {plan_path}); "
-                                 "use a new --out, or the same options to resume")  # fmt: skip
+            raise ProjsynthError(
+                f"--out {out}: holds a dataset made with other options (see {plan_path}); "
+                "use a new --out, or the same options to resume"
+            )
         return
     if (out / MANIFEST).exists() or any(out.glob("shard-*.h5")):
         raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
@@ -202,9 +217,11 @@ def claim_shards(out: Path, shards: range) -> Iterator[None]:
         try:
             fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB, len(shards), shards.start, os.SEEK_SET)
         except OSError as e:  # EAGAIN or EACCES: held by another process
-            raise ProjsynthError(f"--out {out}: another `projsynth gen` is writing shards there (some of "
-                                 f"{shards.start}-{shards.stop - 1}; lock {path}); wait for it to finish, or give "
-                                 "each run its own --shards range") from e  # fmt: skip
+            raise ProjsynthError(
+                f"--out {out}: another `projsynth gen` is writing shards there (some of "
+                f"{shards.start}-{shards.stop - 1}; lock {path}); wait for it to finish, or give "
+                "each run its own --shards range"
+            ) from e
         yield
     finally:
         os.close(fd)
@@ -314,9 +331,17 @@ def _write_one(job: tuple, tick: Callable[[int], None] | None = None) -> int:
         samples.append(make_sample(plan, k, cache[pair]))
         if tick:
             tick(1)
-    attrs = {"format_version": FORMAT_VERSION, "generator": f"projsynth {__version__}", "config_hash": config_hash,
-             "seed": plan.seed, "shard_index": j, "first_sample": first, "split": plan.split,
-             "table_version": plan.table.version, "libraries": library_versions()}  # fmt: skip
+    attrs = {
+        "format_version": FORMAT_VERSION,
+        "generator": f"projsynth {__version__}",
+        "config_hash": config_hash,
+        "seed": plan.seed,
+        "shard_index": j,
+        "first_sample": first,
+        "split": plan.split,
+        "table_version": plan.table.version,
+        "libraries": library_versions(),
+    }
     write_shard(out / shard_name(j), samples, attrs)
     return len(samples)
 

@@ -48,8 +48,19 @@ class Lens:
         A tuple of scalars, not an array: kernels receive it by value, without reference counting.
         """
         fold = self.max_radius
-        values = (self.fx, self.fy, self.cx, self.cy, *_coefficients(self.dist), self.width, self.height, fold * fold,
-                  self.distorted, 1.0 / self.fx, 1.0 / self.fy)  # fmt: skip
+        values = (
+            self.fx,
+            self.fy,
+            self.cx,
+            self.cy,
+            *_coefficients(self.dist),
+            self.width,
+            self.height,
+            fold * fold,
+            self.distorted,
+            1.0 / self.fx,
+            1.0 / self.fy,
+        )
         return tuple(float(x) for x in values)
 
     def to_dict(self) -> dict:
@@ -139,8 +150,19 @@ def distort1(x: float, y: float, k1: float, k2: float, p1: float, p2: float, k3:
 
 
 @jit(inline=True)
-def undistort1(xd: float, yd: float, k1: float, k2: float, p1: float, p2: float, k3: float, scale: float,
-               fold_r2: float, x0: float, y0: float) -> tuple[float, float, bool]:  # fmt: skip
+def undistort1(
+    xd: float,
+    yd: float,
+    k1: float,
+    k2: float,
+    p1: float,
+    p2: float,
+    k3: float,
+    scale: float,
+    fold_r2: float,
+    x0: float,
+    y0: float,
+) -> tuple[float, float, bool]:
     """:func:`undistort` of one point: Newton on the 2 x 2 Jacobian, from the guess ``(x0, y0)``."""
     x, y = x0, y0
     for step in range(_NEWTON_ITERS + 1):

@@ -46,8 +46,10 @@ def _sources(v: object) -> bool:
 _SCHEMA: dict[str, tuple[Callable[[object], bool], str]] = {
     "generator": (_text, "a string"),
     "config_hash": (_sha256, "a sha256 hex digest"),
-    "size": (lambda v: _list_of(_int(MIN_SIZE))(v) and len(v) == 2 and max(v) <= MAX_SIZE,
-             f"[H, W] with each side in {MIN_SIZE}..{MAX_SIZE}"),
+    "size": (
+        lambda v: _list_of(_int(MIN_SIZE))(v) and len(v) == 2 and max(v) <= MAX_SIZE,
+        f"[H, W] with each side in {MIN_SIZE}..{MAX_SIZE}",
+    ),
     "seed": (_int(0), "an integer >= 0"),
     "split": (lambda v: v in SPLITS, f"one of {', '.join(SPLITS)}"),
     "pairs": (_int(1), "an integer >= 1"),
@@ -58,11 +60,14 @@ _SCHEMA: dict[str, tuple[Callable[[object], bool], str]] = {
     "sources": (_sources, "null or {kind: [names]}"),
     "shard_size": (_int(1), "an integer >= 1"),
     "num_samples": (_int(1), "an integer >= 1"),
-    "shards": (_list_of(_entry({"index": _int(0), "file": _text, "first_sample": _int(0), "count": _int(1),
-                                "sha256": _sha256})),
-               "a non-empty list of {index, file, first_sample, count >= 1, sha256}"),
+    "shards": (
+        _list_of(
+            _entry({"index": _int(0), "file": _text, "first_sample": _int(0), "count": _int(1), "sha256": _sha256})
+        ),
+        "a non-empty list of {index, file, first_sample, count >= 1, sha256}",
+    ),
     "samples": (_list_of(_entry({"id": _text, "sha256": _sha256})), "a non-empty list of {id, sha256}"),
-}  # fmt: skip
+}
 
 
 # Sequence datasets only (``frames`` > 1); a manifest without them is a single-frame one.
@@ -72,8 +77,9 @@ _SEQUENCE_SCHEMA: dict[str, tuple[Callable[[object], bool], str]] = {
 }
 
 # A captured dataset (projsynth.captured): no generation config, a capture record and the camera's size.
-_CAPTURED_SCHEMA = {k: v for k, v in _SCHEMA.items() if k not in ("seed", "transforms", "table_version",
-                                                                 "table_digest", "sources")}  # fmt: skip
+_CAPTURED_SCHEMA = {
+    k: v for k, v in _SCHEMA.items() if k not in ("seed", "transforms", "table_version", "table_digest", "sources")
+}
 _CAPTURED_SCHEMA["camera_size"] = (_SCHEMA["size"][0], _SCHEMA["size"][1])
 _CAPTURED_SCHEMA["captured"] = (lambda v: isinstance(v, dict), "the capture record {patterns_kind, photos, pairs}")
 
@@ -92,8 +98,10 @@ def manifest_problems(m: dict, path: Path) -> list[str]:
     """
     version = m.get("format_version")
     if version not in READABLE_FORMATS:
-        raise ProjsynthError(f"{path}: format version {version!r} is not one this projsynth reads "
-                             f"({', '.join(map(str, READABLE_FORMATS))}); use the projsynth that wrote it")  # fmt: skip
+        raise ProjsynthError(
+            f"{path}: format version {version!r} is not one this projsynth reads "
+            f"({', '.join(map(str, READABLE_FORMATS))}); use the projsynth that wrote it"
+        )
     schema = _CAPTURED_SCHEMA if "captured" in m else _SCHEMA
     if any(k in m for k in SEQUENCE_KEYS):
         schema = schema | _SEQUENCE_SCHEMA
@@ -116,13 +124,20 @@ def _layout_problems(m: dict) -> list[str]:
             out.append(f"shard entry {j} is not shard {j} starting at sample {first}")
             break
         if m.get("frames", 1) > 1 and (e["count"] % m["frames"] or size % m["frames"]):
-            out.append(f"shard {j} holds {e['count']} samples of shards of {size}: not whole sequences of "
-                       f"{m['frames']} frames")  # fmt: skip
+            out.append(
+                f"shard {j} holds {e['count']} samples of shards of {size}: not whole sequences of {m['frames']} frames"
+            )
         if e["count"] > size or (e["count"] < size and j < len(shards) - 1):
             out.append(f"shard {j} holds {e['count']} samples; every shard but the last holds {size}")
         first += e["count"]
-    planned = ("captured pairs are", m["pairs"]) if "captured" in m else (
-        "plan (pairs x 2 x transforms x frames) makes", m["pairs"] * 2 * len(m["transforms"]) * m.get("frames", 1))
+    planned = (
+        ("captured pairs are", m["pairs"])
+        if "captured" in m
+        else (
+            "plan (pairs x 2 x transforms x frames) makes",
+            m["pairs"] * 2 * len(m["transforms"]) * m.get("frames", 1),
+        )
+    )
     for what, n in (("shard counts sum to", first), ("samples list has", len(m["samples"])), planned):
         if n != m["num_samples"]:
             out.append(f"num_samples is {m['num_samples']} but the {what} {n}")

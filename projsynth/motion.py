@@ -88,11 +88,16 @@ class Trajectory:
         (deg) and a translation (cm), the exposure and the drawn trajectory."""
         rot, centre = self.pose(t)
         offsets = self.exposure()
-        return {"preset": self.preset, "frame_rate_hz": FRAME_RATE_HZ, "time_s": t,
-                "rotation_deg": [float(v) for v in np.degrees(rotation_vector(rot))],
-                "translation_cm": [float(v) for v in centre / CM],
-                "exposure_s": offsets[-1] - offsets[0], "subframes": len(offsets),
-                "trajectory": self.params}  # fmt: skip
+        return {
+            "preset": self.preset,
+            "frame_rate_hz": FRAME_RATE_HZ,
+            "time_s": t,
+            "rotation_deg": [float(v) for v in np.degrees(rotation_vector(rot))],
+            "translation_cm": [float(v) for v in centre / CM],
+            "exposure_s": offsets[-1] - offsets[0],
+            "subframes": len(offsets),
+            "trajectory": self.params,
+        }
 
 
 def draw_trajectory(preset: str, frames: int, rng: np.random.Generator) -> Trajectory:
@@ -104,16 +109,24 @@ def draw_trajectory(preset: str, frames: int, rng: np.random.Generator) -> Traje
         direction = rng.normal(size=3) * np.array([1.0, 1.0, 0.3])  # wind pushes the drone mostly sideways
         axis = rng.normal(size=3)
         duration = (frames - 1) / FRAME_RATE_HZ
-        params = {"onset_s": rng.uniform(0, duration / 2), "tau_s": rng.uniform(0.03, 0.1),
-                  "translation_cm": rng.uniform(3, 10) * direction / np.linalg.norm(direction),
-                  "rotation_deg": rng.uniform(1, 3) * axis / np.linalg.norm(axis)}  # fmt: skip
+        params = {
+            "onset_s": rng.uniform(0, duration / 2),
+            "tau_s": rng.uniform(0.03, 0.1),
+            "translation_cm": rng.uniform(3, 10) * direction / np.linalg.norm(direction),
+            "rotation_deg": rng.uniform(1, 3) * axis / np.linalg.norm(axis),
+        }
     elif preset == "vibration":
-        params = {"freq_hz": rng.uniform(80, 200), "amp": rng.uniform(0.05, 0.15, (3, 1)) * np.array([1.0, 0.3]),
-                  "phase": rng.uniform(0, 2 * np.pi, (3, 2))}  # fmt: skip
+        params = {
+            "freq_hz": rng.uniform(80, 200),
+            "amp": rng.uniform(0.05, 0.15, (3, 1)) * np.array([1.0, 0.3]),
+            "phase": rng.uniform(0, 2 * np.pi, (3, 2)),
+        }
     elif preset == "orbit":
         azimuth = rng.uniform(0, np.pi)
-        params = {"rate_deg_s": rng.uniform(*ORBIT_RATE_DEG_S) * rng.choice([-1.0, 1.0]),
-                  "axis": [np.cos(azimuth), np.sin(azimuth), 0.0]}  # fmt: skip
+        params = {
+            "rate_deg_s": rng.uniform(*ORBIT_RATE_DEG_S) * rng.choice([-1.0, 1.0]),
+            "axis": [np.cos(azimuth), np.sin(azimuth), 0.0],
+        }
     else:
         raise ValueError(f"unknown motion {preset!r}")
     return Trajectory(preset, {k: np.asarray(v, np.float64).tolist() for k, v in params.items()})

@@ -56,8 +56,16 @@ def composite(
         if lit.size != h * w:
             raise ValueError(f"composite needs one position per camera pixel ({h * w}), got {lit.size}")
         raw = _noise_bits(rng, h * w * 3)  # the bits of gaussian_noise(rng, (h, w, 3))
-        return _paper(_rgba(image), xy[0], xy[1], lit, np.ascontiguousarray(background), raw, normal_table(),
-                      *(float(p[k]) for k in _PAPER))  # fmt: skip
+        return _paper(
+            _rgba(image),
+            xy[0],
+            xy[1],
+            lit,
+            np.ascontiguousarray(background),
+            raw,
+            normal_table(),
+            *(float(p[k]) for k in _PAPER),
+        )
     if blend != "physical":
         raise ValueError(f"unknown blend {blend!r}")
     warped = sample_where(image, xy, lit).reshape(h, w, 4)
@@ -86,8 +94,9 @@ def _paper(image, xs, ys, lit, background, raw, table, beta, contrast, brightnes
                 r, g, b, a = _bilinear4(image, xs[i], ys[i])
             wt = beta * (a / full)
             for c, fg in ((0, r), (1, g), (2, b)):
-                out[y, x, c] = _blend1(wt, fg, background[y, x, c], raw, table, 3 * i + c, contrast, brightness, gamma,
-                                       mu, sigma)  # fmt: skip
+                out[y, x, c] = _blend1(
+                    wt, fg, background[y, x, c], raw, table, 3 * i + c, contrast, brightness, gamma, mu, sigma
+                )
     return out
 
 
@@ -210,8 +219,12 @@ def _bilinear4(image, x, y):  # noqa: ANN001, ANN202
     x, y = min(max(x, 0.0), w - 1.0), min(max(y, 0.0), h - 1.0)
     x0, y0 = min(int(x), w - 2), min(int(y), h - 2)  # x >= 0, so truncation is floor
     fx, fy = np.float32(x - x0), np.float32(y - y0)
-    return (_lerp2(image, x0, y0, 0, fx, fy), _lerp2(image, x0, y0, 1, fx, fy), _lerp2(image, x0, y0, 2, fx, fy),
-            _lerp2(image, x0, y0, 3, fx, fy))  # fmt: skip
+    return (
+        _lerp2(image, x0, y0, 0, fx, fy),
+        _lerp2(image, x0, y0, 1, fx, fy),
+        _lerp2(image, x0, y0, 2, fx, fy),
+        _lerp2(image, x0, y0, 3, fx, fy),
+    )
 
 
 @jit(inline=True)

@@ -106,8 +106,9 @@ def _shape_params(family: str, g: dict, rng: np.random.Generator, extra: dict) -
         bumps = []
         for _ in range(int(round(g["bump_count"]))):
             amp = g["bump_amp"] * rng.uniform(0.5, 1.0) * rng.choice([-1.0, 1.0])
-            bumps.append([amp, rng.uniform(-0.45, 0.45), rng.uniform(-0.35, 0.35),
-                          g["bump_sigma"] * rng.uniform(0.7, 1.3)])  # fmt: skip
+            bumps.append(
+                [amp, rng.uniform(-0.45, 0.45), rng.uniform(-0.35, 0.35), g["bump_sigma"] * rng.uniform(0.7, 1.3)]
+            )
         bumps = [[float(v) for v in b] for b in bumps]
         extra["bumps"] = bumps
         return {"bumps": bumps}

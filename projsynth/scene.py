@@ -65,8 +65,9 @@ def forward(scene: Scene, pts: np.ndarray) -> ForwardMap:
     ``pts[:, i]``. A point is valid when its projector ray hits the surface, the camera sees that
     point first (no occlusion), and it lands in the camera frame ``[0, W-1] x [0, H-1]``.
     """
-    uv, reason = _forward_many(scene.projector.packed, scene.camera.packed, *_pose(scene), *scene.surface.packed,
-                               _points(pts))  # fmt: skip
+    uv, reason = _forward_many(
+        scene.projector.packed, scene.camera.packed, *_pose(scene), *scene.surface.packed, _points(pts)
+    )
     return ForwardMap(uv, reason == 0, reason)
 
 
@@ -78,8 +79,9 @@ def backward(scene: Scene, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         surface point lit by the projector (inside its pixels' footprint ``[-0.5, W-0.5] x
         [-0.5, H-0.5]``, not in shadow).
     """
-    return _backward_many(scene.camera.packed, scene.projector.packed, *_pose(scene), *scene.surface.packed,
-                          _points(pts))  # fmt: skip
+    return _backward_many(
+        scene.camera.packed, scene.projector.packed, *_pose(scene), *scene.surface.packed, _points(pts)
+    )
 
 
 def _pose(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -140,9 +142,12 @@ def _forward_many(proj, cam, R, C, g, terms, pts):  # noqa: ANN001, ANN202
             t = 0.0
         x, y, z = dx * t, dy * t, dz * t
         px, py, pz = x - C[0], y - C[1], z - C[2]
-        u, v, cam_ok = project1(cam, R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz,
-                                R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz,
-                                R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz)  # fmt: skip
+        u, v, cam_ok = project1(
+            cam,
+            R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz,
+            R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz,
+            R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz,
+        )
         frame_ok = in_frame1(cam, u, v, 1e-6)
         r = 0 if lens_ok and cam_ok else LENS
         if not hit:
@@ -194,8 +199,7 @@ def pixel_grid(height: int, width: int) -> np.ndarray:
     return grid
 
 
-def look_at(C: np.ndarray, target: np.ndarray, offset_px: tuple[float, float], roll: float,
-            lens: Lens) -> np.ndarray:
+def look_at(C: np.ndarray, target: np.ndarray, offset_px: tuple[float, float], roll: float, lens: Lens) -> np.ndarray:
     """``cam_from_world`` rotation of a camera at ``C`` that sees ``target`` at principal point + offset.
 
     Args:

@@ -121,15 +121,19 @@ def _fill(f: h5py.File, samples: list[Sample], attrs: dict) -> None:
         blobs.append(encode_flow_exr(s.flow, s.valid, s.id))
         exr[i] = np.frombuffer(blobs[-1], np.uint8)
     text = h5py.string_dtype()
-    columns = {"flow_exr": blobs, "sample_id": [s.id for s in samples],
-               "params": [json.dumps(s.params, sort_keys=True) for s in samples],
-               "sample_hash": [s.content_hash() for s in samples]}  # fmt: skip
+    columns = {
+        "flow_exr": blobs,
+        "sample_id": [s.id for s in samples],
+        "params": [json.dumps(s.params, sort_keys=True) for s in samples],
+        "sample_hash": [s.content_hash() for s in samples],
+    }
     for name in CRC_COLUMNS[1:]:
         f.create_dataset(name, data=columns[name], dtype=text, track_times=False)
-    f.create_dataset("transform_id", data=[s.params["transform_id"] for s in samples], dtype=np.int16,
-                     **_TABLE_OPTS)  # fmt: skip
-    crc = [[zlib.crc32(v if isinstance(v, bytes) else v.encode()) for v in row]
-           for row in zip(*(columns[name] for name in CRC_COLUMNS), strict=True)]  # fmt: skip
+    f.create_dataset("transform_id", data=[s.params["transform_id"] for s in samples], dtype=np.int16, **_TABLE_OPTS)
+    crc = [
+        [zlib.crc32(v if isinstance(v, bytes) else v.encode()) for v in row]
+        for row in zip(*(columns[name] for name in CRC_COLUMNS), strict=True)
+    ]
     f.create_dataset("crc32", data=np.array(crc, np.uint32), **_TABLE_OPTS).attrs["columns"] = ",".join(CRC_COLUMNS)
     f.attrs["complete"] = True
 
@@ -147,8 +151,14 @@ def library_versions() -> str:
     import numba
     import OpenEXR
 
-    versions = {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-                "numba": numba.__version__, "h5py": h5py.__version__, "openexr": OpenEXR.__version__}  # fmt: skip
+    versions = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "opencv": cv2.__version__,
+        "numba": numba.__version__,
+        "h5py": h5py.__version__,
+        "openexr": OpenEXR.__version__,
+    }
     return json.dumps(versions, sort_keys=True)
 
 
@@ -179,11 +189,25 @@ def assemble_manifest(root: Path, plan_info: dict, num_shards: int, shard_size: 
             hashes = [s.decode() for s in f["sample_hash"][:]]
             if "libraries" in f.attrs:  # (not written before 0.2.0)
                 builds.add(f.attrs["libraries"])
-        shards.append({"index": j, "file": path.name, "first_sample": j * shard_size, "count": len(ids),
-                       "sha256": file_sha256(path), "bytes": path.stat().st_size})  # fmt: skip
+        shards.append(
+            {
+                "index": j,
+                "file": path.name,
+                "first_sample": j * shard_size,
+                "count": len(ids),
+                "sha256": file_sha256(path),
+                "bytes": path.stat().st_size,
+            }
+        )
         samples += [{"id": i, "sha256": s} for i, s in zip(ids, hashes, strict=True)]
-    manifest = {**plan_info, "shard_size": shard_size, "num_samples": len(samples), "shards": shards,
-                "libraries": [json.loads(b) for b in sorted(builds)], "samples": samples}  # fmt: skip
+    manifest = {
+        **plan_info,
+        "shard_size": shard_size,
+        "num_samples": len(samples),
+        "shards": shards,
+        "libraries": [json.loads(b) for b in sorted(builds)],
+        "samples": samples,
+    }
     write_json_atomic(root / MANIFEST, manifest)
     return manifest
 
@@ -208,8 +232,10 @@ def load_manifest(root: Path) -> dict:
     manifest = read_json(path, "manifest")
     problems = manifest_problems(manifest, path)
     if problems:
-        raise ProjsynthError(f"{path}: {problems[0]}; run `projsynth verify {root}`, or rebuild the manifest "
-                             f"with `projsynth merge {root}`")  # fmt: skip
+        raise ProjsynthError(
+            f"{path}: {problems[0]}; run `projsynth verify {root}`, or rebuild the manifest "
+            f"with `projsynth merge {root}`"
+        )
     return manifest
 
 
@@ -252,8 +278,11 @@ class ShardReader:
         f = open_shard(path)
         try:
             a = f.attrs
-            mine = (a.get("config_hash") == self.manifest["config_hash"] and a.get("first_sample")
-                    == entry["first_sample"] and a.get("count") == entry["count"])  # fmt: skip
+            mine = (
+                a.get("config_hash") == self.manifest["config_hash"]
+                and a.get("first_sample") == entry["first_sample"]
+                and a.get("count") == entry["count"]
+            )
             self._crc[j] = f["crc32"][:] if "crc32" in f else None  # format 1 shards have none
         except (OSError, KeyError, ValueError) as e:
             f.close()
@@ -261,9 +290,11 @@ class ShardReader:
             raise ProjsynthError(f"{path}: unreadable header ({why}); run `projsynth verify {self.root}`") from e
         if not mine:
             f.close()
-            raise ProjsynthError(f"{path}: not this dataset's shard {j} (its config hash, first sample or count "
-                                 f"differ from {self.root / MANIFEST}); run `projsynth verify {self.root}` "
-                                 "and regenerate it")  # fmt: skip
+            raise ProjsynthError(
+                f"{path}: not this dataset's shard {j} (its config hash, first sample or count "
+                f"differ from {self.root / MANIFEST}); run `projsynth verify {self.root}` "
+                "and regenerate it"
+            )
         return f
 
     def read(self, k: int, with_params: bool = True, flow_exr: bool = False) -> dict:
@@ -298,8 +329,9 @@ class ShardReader:
             return out
         except (OSError, KeyError, ValueError, ProjsynthError) as e:
             why = _DAMAGED_CHUNK if "filter returned failure" in str(e) else e
-            raise ProjsynthError(f"{self.root / shard_name(j)}: sample {i} unreadable ({why}); "
-                                 f"run `projsynth verify {self.root}`") from e  # fmt: skip
+            raise ProjsynthError(
+                f"{self.root / shard_name(j)}: sample {i} unreadable ({why}); run `projsynth verify {self.root}`"
+            ) from e
 
     def close(self) -> None:
         for f in self._files.values():

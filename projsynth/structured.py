@@ -199,8 +199,9 @@ def read_patterns(folder: Path) -> PatternSet:
     period, shifts = params.get("period", DEFAULT_PERIOD), params.get("shifts", DEFAULT_SHIFTS)
     expected = make_set(patterns.kind, size, grid, period, shifts)
     if expected.describe() != patterns.describe():
-        raise ProjsynthError(f"{path}: edited or from another version of projsynth; write it again with "
-                             "`projsynth patterns`")  # fmt: skip
+        raise ProjsynthError(
+            f"{path}: edited or from another version of projsynth; write it again with `projsynth patterns`"
+        )
     return patterns
 
 

@@ -102,8 +102,15 @@ def _pack(kind: str, rotation: np.ndarray, origin: np.ndarray, params: dict) -> 
         amp, _, _, sigma = terms.T
         bound, slope = float(np.abs(amp).sum()), float((np.abs(amp) / sigma).sum() * np.exp(-0.5))
         curvature = float((np.abs(amp) / (sigma * sigma)).sum())
-    geometry = (code, *np.asarray(rotation, np.float64).ravel(), *np.asarray(origin, np.float64), radius, bound, slope,
-                curvature)  # fmt: skip
+    geometry = (
+        code,
+        *np.asarray(rotation, np.float64).ravel(),
+        *np.asarray(origin, np.float64),
+        radius,
+        bound,
+        slope,
+        curvature,
+    )
     return tuple(float(x) for x in geometry), np.ascontiguousarray(terms)
 
 
@@ -115,9 +122,14 @@ def _pack(kind: str, rotation: np.ndarray, origin: np.ndarray, params: dict) -> 
 @jit(inline=True)
 def _to_local(g, ox, oy, oz, dx, dy, dz):  # noqa: ANN001, ANN202
     px, py, pz = ox - g[10], oy - g[11], oz - g[12]  # R^T (o - origin), R^T d; R[i, j] = g[1 + 3 i + j]
-    return (g[1] * px + g[4] * py + g[7] * pz, g[2] * px + g[5] * py + g[8] * pz,
-            g[3] * px + g[6] * py + g[9] * pz, g[1] * dx + g[4] * dy + g[7] * dz,
-            g[2] * dx + g[5] * dy + g[8] * dz, g[3] * dx + g[6] * dy + g[9] * dz)  # fmt: skip
+    return (
+        g[1] * px + g[4] * py + g[7] * pz,
+        g[2] * px + g[5] * py + g[8] * pz,
+        g[3] * px + g[6] * py + g[9] * pz,
+        g[1] * dx + g[4] * dy + g[7] * dz,
+        g[2] * dx + g[5] * dy + g[8] * dz,
+        g[3] * dx + g[6] * dy + g[9] * dz,
+    )
 
 
 @jit(inline=True)
@@ -301,4 +313,3 @@ def _intersect_many(g, terms, o, d):  # noqa: ANN001, ANN202
         j = 0 if shared else i
         t[i] = hit1(g, terms, o[0, j], o[1, j], o[2, j], d[0, i], d[1, i], d[2, i], np.nan)
     return t
-

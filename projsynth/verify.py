@@ -33,12 +33,15 @@ def _samples(path: Path) -> Iterator[tuple[int, Sample]]:
             sid = f["sample_id"][i].decode()
             if header.get("sample_id") != sid:
                 raise ValueError(f"sample {i}: EXR sample_id {header.get('sample_id')!r} is not {sid!r}")
-            yield i, Sample(int(f.attrs["first_sample"]) + i, sid, f["projected"][i], f["captured"][i],
-                            flow, valid, params)  # fmt: skip
+            yield (
+                i,
+                Sample(int(f.attrs["first_sample"]) + i, sid, f["projected"][i], f["captured"][i], flow, valid, params),
+            )
 
 
-def verify(root: Path, progress: Callable[[int], None] | None = None,
-           progress_total: Callable[[int], None] | None = None) -> list[str]:
+def verify(
+    root: Path, progress: Callable[[int], None] | None = None, progress_total: Callable[[int], None] | None = None
+) -> list[str]:
     """Check schema, hashes, finiteness and flow/valid consistency of every shard.
 
     ``progress_total(n)`` is called once the manifest is read (not before: a missing dataset is an
@@ -85,12 +88,18 @@ def _check_shard(
     with open_shard(path) as f:
         n = entry["count"]
         a = f.attrs
-        if (a.get("config_hash") != manifest["config_hash"] or a.get("shard_index") != entry["index"]
-                or a.get("first_sample") != entry["first_sample"] or a.get("count") != n
-                or a.get("format_version") != manifest.get("format_version")
-                or a.get("generator") != manifest.get("generator")):  # fmt: skip
-            out.append("attributes do not match the manifest (config hash, shard index, first sample, count, "
-                       "format version or generator)")  # fmt: skip
+        if (
+            a.get("config_hash") != manifest["config_hash"]
+            or a.get("shard_index") != entry["index"]
+            or a.get("first_sample") != entry["first_sample"]
+            or a.get("count") != n
+            or a.get("format_version") != manifest.get("format_version")
+            or a.get("generator") != manifest.get("generator")
+        ):
+            out.append(
+                "attributes do not match the manifest (config hash, shard index, first sample, count, "
+                "format version or generator)"
+            )
         for name, shape in (("projected", (n, h, w, 3)), ("captured", (n, hc, wc, 3)), ("valid", (n, h, w))):
             if f[name].shape != shape:
                 out.append(f"dataset {name} has shape {f[name].shape}, expected {shape}")
@@ -122,8 +131,9 @@ _CONFIG_KEYS = ("size", "camera_size", "seed", "split", "pairs", "blend", "table
 HIST_EDGES = (0, 2, 5, 10, 20, 40, 80, 160, np.inf)
 
 
-def inspect(root: Path, progress: Callable[[int], None] | None = None,
-            progress_total: Callable[[int], None] | None = None) -> dict:
+def inspect(
+    root: Path, progress: Callable[[int], None] | None = None, progress_total: Callable[[int], None] | None = None
+) -> dict:
     """Counts, per-family flow-magnitude histograms and the share of valid pixels per bucket.
 
     ``progress_total(n)`` is called once the dataset is open, ``progress(1)`` after each sample.
@@ -140,8 +150,9 @@ def inspect(root: Path, progress: Callable[[int], None] | None = None,
         for k in range(len(reader)):
             s = reader.read(k)
             fam, flow, valid = s["params"]["transform"]["family"], s["flow"], s["valid"]
-            rec = families.setdefault(fam, {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0],
-                                            "hist": [0] * (len(edges) - 1)})  # fmt: skip
+            rec = families.setdefault(
+                fam, {"samples": 0, "pixels": 0, "valid": 0, "buckets": [0, 0, 0], "hist": [0] * (len(edges) - 1)}
+            )
             mag = np.hypot(flow[..., 0], flow[..., 1])[valid]
             counts = [int(m.sum()) for m in bucket_of(mag)]
             hist = np.histogram(mag, bins=edges)[0]

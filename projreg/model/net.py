@@ -58,10 +58,15 @@ MODEL_CONFIGS: dict[str, dict[str, Any]] = {
 # above both configurations, low enough that a file from elsewhere cannot make building the model
 # allocate without limit (``attn_splits`` 10**6 asked predict for 1.5 PB, ``feature_channels`` 65536 17 GB).
 CONFIG_BOUNDS: dict[str, tuple[float, float]] = {
-    "feature_channels": (4, 512), "backbone_channels": (1, 512), "num_transformer_layers": (0, 12),
-    "ffn_dim_expansion": (1, 8), "attn_splits": (1, 8), "ssjm_lambda": (1e-12, 1.0), "refine_radius": (1, 8),
+    "feature_channels": (4, 512),
+    "backbone_channels": (1, 512),
+    "num_transformer_layers": (0, 12),
+    "ffn_dim_expansion": (1, 8),
+    "attn_splits": (1, 8),
+    "ssjm_lambda": (1e-12, 1.0),
+    "refine_radius": (1, 8),
     "upsampler_channels": (1, 512),
-}  # fmt: skip
+}
 CONFIG_FLAGS = ("use_ssjm", "refine")
 
 

@@ -51,8 +51,15 @@ class Probe:
         """Run ``PROG ARGS`` as its console command does, in a new process (usage errors are formatted
         there; a crash shows as a signal), with this checkout's packages."""
         env = {**os.environ, "PYTHONPATH": str(Path(projsynth.__file__).parents[1])}
-        run = subprocess.run([sys.executable, "-m", f"{prog}.cli", *map(str, args)], cwd=cwd, env=env,
-                             preexec_fn=preexec_fn, capture_output=True, text=True, timeout=600)  # fmt: skip
+        run = subprocess.run(
+            [sys.executable, "-m", f"{prog}.cli", *map(str, args)],
+            cwd=cwd,
+            env=env,
+            preexec_fn=preexec_fn,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         return Ran(run.returncode, run.stdout, run.stderr)
 
     @staticmethod

@@ -12,14 +12,30 @@ READERS = ["inspect", "export", "preview", "train", "bench"]
 
 
 def _read_with(probe, command, root, tmp_path):
-    args = {"inspect": ["inspect", root],
-            "export": ["export", root, "--out", tmp_path / "x", "-q"],
-            "preview": ["preview", root, "--out", tmp_path / "p.png"]}  # fmt: skip
+    args = {
+        "inspect": ["inspect", root],
+        "export": ["export", root, "--out", tmp_path / "x", "-q"],
+        "preview": ["preview", root, "--out", tmp_path / "p.png"],
+    }
     if command in args:
         return probe.projsynth(*args[command])
     if command == "train":
-        return probe.projreg("train", "--data", root, "--out", tmp_path / "run", "--steps", "1", "--batch-size", "2",
-                             "--crop", "none", "--workers", "0", "-q")  # fmt: skip
+        return probe.projreg(
+            "train",
+            "--data",
+            root,
+            "--out",
+            tmp_path / "run",
+            "--steps",
+            "1",
+            "--batch-size",
+            "2",
+            "--crop",
+            "none",
+            "--workers",
+            "0",
+            "-q",
+        )
     return probe.projreg("bench", "--data", root, "--baselines", "farneback", "-q")
 
 

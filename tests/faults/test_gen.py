@@ -39,8 +39,9 @@ def test_a_seed_outside_64_bits_is_refused_up_front(probe, tmp_path, seed):
 
 def test_the_largest_seed_works(probe, tmp_path):
     out = tmp_path / "ds"
-    result = probe.projsynth("gen", "--out", out, "--pairs", "1", "--size", "32x32", "--transforms", "0",
-                             "--seed", str(2**64 - 1), "-q")  # fmt: skip
+    result = probe.projsynth(
+        "gen", "--out", out, "--pairs", "1", "--size", "32x32", "--transforms", "0", "--seed", str(2**64 - 1), "-q"
+    )
     assert result.exit_code == 0, result.stderr
     assert probe.projsynth("verify", out, "-q").exit_code == 0
 
@@ -59,15 +60,31 @@ def test_a_fifo_among_the_sources_is_skipped_not_waited_for(probe, tmp_path):
             image = np.random.default_rng(i).integers(0, 255, (48, 48, 3), np.uint8)
             assert cv2.imwrite(str(tmp_path / kind / f"{i}.png"), image)
     os.mkfifo(tmp_path / "natural" / "pipe.png")
+
     def hung(*_):
         raise TimeoutError("gen waited for a writer of the FIFO")  # as it did before the fix
 
     previous = signal.signal(signal.SIGALRM, hung)
     signal.alarm(120)
     try:
-        result = probe.projsynth("gen", "--out", tmp_path / "ds", "--natural", tmp_path / "natural", "--generated",
-                                 tmp_path / "generated", "--split", "all", "--pairs", "2", "--size", "32x32",
-                                 "--transforms", "0", "-q")  # fmt: skip
+        result = probe.projsynth(
+            "gen",
+            "--out",
+            tmp_path / "ds",
+            "--natural",
+            tmp_path / "natural",
+            "--generated",
+            tmp_path / "generated",
+            "--split",
+            "all",
+            "--pairs",
+            "2",
+            "--size",
+            "32x32",
+            "--transforms",
+            "0",
+            "-q",
+        )
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
@@ -110,8 +127,15 @@ def _row(**changes: str) -> str:
     def inline(ranges):
         return "{" + ", ".join(f"{k} = [{a!r}, {b!r}]" for k, (a, b) in ranges.items()) + "}"
 
-    row = {"id": "0", "name": '"t0"', "family": '"planar"', "severity": "1", "condition": '"studio"',
-           "geometry": inline(c.geometry), "photometry": inline(c.photometry)}  # fmt: skip
+    row = {
+        "id": "0",
+        "name": '"t0"',
+        "family": '"planar"',
+        "severity": "1",
+        "condition": '"studio"',
+        "geometry": inline(c.geometry),
+        "photometry": inline(c.photometry),
+    }
     row.update(changes)
     return "[[transform]]\n" + "\n".join(f"{k} = {v}" for k, v in row.items() if v is not None) + "\n"
 

@@ -33,8 +33,22 @@ def _edit(root, change) -> None:
 
 def _run(probe, command, root, tmp_path):
     if command == "train":
-        return probe.projreg("train", "--data", root, "--out", tmp_path / "run", "--steps", "1", "--batch-size", "2",
-                             "--crop", "none", "--workers", "0", "-q")  # fmt: skip
+        return probe.projreg(
+            "train",
+            "--data",
+            root,
+            "--out",
+            tmp_path / "run",
+            "--steps",
+            "1",
+            "--batch-size",
+            "2",
+            "--crop",
+            "none",
+            "--workers",
+            "0",
+            "-q",
+        )
     if command == "bench":
         return probe.projreg("bench", "--data", root, "--baselines", "farneback", "-q")
     extra = {"inspect": [], "export": ["--out", tmp_path / "x", "-q"], "preview": ["--out", tmp_path / "p.png"]}
@@ -42,8 +56,9 @@ def _run(probe, command, root, tmp_path):
 
 
 @pytest.mark.parametrize("edit", EDITS)
-def test_an_edited_manifest_is_one_line_for_readers_and_a_problem_for_verify(probe, d_copy, tmp_path, monkeypatch,
-                                                                             edit):  # fmt: skip
+def test_an_edited_manifest_is_one_line_for_readers_and_a_problem_for_verify(
+    probe, d_copy, tmp_path, monkeypatch, edit
+):
     monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
     change, message = EDITS[edit]
     _edit(d_copy, change)

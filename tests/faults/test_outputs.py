@@ -40,8 +40,9 @@ def test_non_finite_flow_is_filled_like_invalid_flow(probe, tmp_path, content, b
 def test_a_flow_with_no_finite_vector_is_refused(probe, tmp_path, content):
     flow = _flow(tmp_path, np.nan, np.s_[:, :, 1])
     out = tmp_path / "p.png"
-    probe.error(probe.projreg("compensate", "--content", content, "--flow", flow, "--out", out), flow,
-                "no finite valid vector")  # fmt: skip
+    probe.error(
+        probe.projreg("compensate", "--content", content, "--flow", flow, "--out", out), flow, "no finite valid vector"
+    )
     assert not out.exists()
 
 
@@ -56,8 +57,11 @@ def test_compensate_out_equal_to_content_is_refused(probe, tmp_path, content):
     flow = _flow(tmp_path, 0.0, np.s_[:0])
     before = content.read_bytes()
     for out in _same_file_cases(tmp_path, content):
-        probe.error(probe.projreg("compensate", "--content", content, "--flow", flow, "--out", out), "--out",
-                    "is the input --content")  # fmt: skip
+        probe.error(
+            probe.projreg("compensate", "--content", content, "--flow", flow, "--out", out),
+            "--out",
+            "is the input --content",
+        )
     assert content.read_bytes() == before
 
 
@@ -66,10 +70,12 @@ def test_predict_viz_equal_to_projected_is_refused(probe, tmp_path, content):
     captured.write_bytes(content.read_bytes())
     before = content.read_bytes()
     for viz in _same_file_cases(tmp_path, content):
-        result = probe.projreg("predict", "--projected", content, "--captured", captured, "--out", tmp_path / "f.exr",
-                               "--viz", viz, "-q")  # fmt: skip
+        result = probe.projreg(
+            "predict", "--projected", content, "--captured", captured, "--out", tmp_path / "f.exr", "--viz", viz, "-q"
+        )
         probe.error(result, "--viz", "is the input --projected")
     assert content.read_bytes() == before and not (tmp_path / "f.exr").exists()
-    result = probe.projreg("predict", "--projected", content, "--captured", captured, "--out", tmp_path / "f.exr",
-                           "--viz", captured, "-q")  # fmt: skip
+    result = probe.projreg(
+        "predict", "--projected", content, "--captured", captured, "--out", tmp_path / "f.exr", "--viz", captured, "-q"
+    )
     probe.error(result, "--viz", "is the input --captured")

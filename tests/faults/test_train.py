@@ -12,14 +12,17 @@ from projsynth.shards import shard_name
 FAST = ["--steps", "1", "--batch-size", "2", "--crop", "none", "--workers", "0", "-q"]
 
 
-@pytest.mark.parametrize(("option", "value", "message"), [
-    ("--seed", "-1", "--seed must be in 0..4294967295"),
-    ("--seed", str(2**32), "--seed must be in 0..4294967295"),
-    ("--seed", str(2**64), "--seed must be in 0..4294967295"),
-    ("--lr", "inf", "--lr must be finite"),
-    ("--lr", "nan", "--lr must be finite"),
-    ("--batch-size", "100000", "--batch-size 100000 exceeds the 32 samples of --data"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--seed", "-1", "--seed must be in 0..4294967295"),
+        ("--seed", str(2**32), "--seed must be in 0..4294967295"),
+        ("--seed", str(2**64), "--seed must be in 0..4294967295"),
+        ("--lr", "inf", "--lr must be finite"),
+        ("--lr", "nan", "--lr must be finite"),
+        ("--batch-size", "100000", "--batch-size 100000 exceeds the 32 samples of --data"),
+    ],
+)
 def test_a_bad_option_is_refused_before_anything_is_written(probe, dataset_d, tmp_path, option, value, message):
     out = tmp_path / "run"
     args = [a for a in FAST if a not in ("--batch-size", "2")] if option == "--batch-size" else FAST
@@ -28,8 +31,9 @@ def test_a_bad_option_is_refused_before_anything_is_written(probe, dataset_d, tm
 
 
 def test_an_empty_out_is_refused(probe, dataset_d, tmp_path):
-    probe.error(probe.process("projreg", "train", "--data", dataset_d, "--out", "", *FAST, cwd=tmp_path), "--out",
-                "empty")  # fmt: skip
+    probe.error(
+        probe.process("projreg", "train", "--data", dataset_d, "--out", "", *FAST, cwd=tmp_path), "--out", "empty"
+    )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -39,8 +43,19 @@ def test_a_diverging_run_never_writes_a_non_finite_checkpoint(dataset_d, tmp_pat
     checkpoint"."""
     monkeypatch.setattr(TrainConfig, "validate", lambda self: None)
     out = tmp_path / "run"
-    cfg = TrainConfig(data=[str(dataset_d)], out=str(out), steps=3, schedule_steps=3, warmup_steps=0, batch_size=1,
-                      lr=math.inf, crop=None, workers=0, ckpt_every=1, log_every=1)  # fmt: skip
+    cfg = TrainConfig(
+        data=[str(dataset_d)],
+        out=str(out),
+        steps=3,
+        schedule_steps=3,
+        warmup_steps=0,
+        batch_size=1,
+        lr=math.inf,
+        crop=None,
+        workers=0,
+        ckpt_every=1,
+        log_every=1,
+    )
     with pytest.raises(ProjregError, match="non-finite") as info:
         train(cfg)
     message, last = str(info.value), out / "checkpoints" / "last.pt"

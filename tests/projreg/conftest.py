@@ -21,8 +21,9 @@ def tiny_train(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_physical(tmp_path_factory):
     """Six samples of the physical blend (ambient light on a textured surface, gamma, defocus, noise)."""
-    return make_shards(tmp_path_factory.mktemp("tiny") / "physical", transforms="2,47,128", seed=4, split="test",
-                       blend="physical")
+    return make_shards(
+        tmp_path_factory.mktemp("tiny") / "physical", transforms="2,47,128", seed=4, split="test", blend="physical"
+    )
 
 
 @pytest.fixture(scope="session")
@@ -33,8 +34,9 @@ def tiny_val(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_sequences(tmp_path_factory):
     """Four sequences of 3 frames (two transforms x two roles) of a hovering projector, 64 x 96."""
-    plan = resolve_plan(size=(64, 96), seed=2, split="test", pairs=1, transforms="0,126", blend="paper", frames=3,
-                        motion="hover")  # fmt: skip
+    plan = resolve_plan(
+        size=(64, 96), seed=2, split="test", pairs=1, transforms="0,126", blend="paper", frames=3, motion="hover"
+    )
     root = tmp_path_factory.mktemp("tiny") / "sequences"
     generate(plan, root, shard_size=6)
     return root

@@ -62,12 +62,23 @@ def _cli(*args):
 def test_report_schema(report, tiny_train):
     assert set(report) == {"dataset", "reference_model", "results", "versus_baselines"}
     manifest = json.loads((tiny_train / "manifest.json").read_text())
-    assert report["dataset"] == {"path": str(tiny_train), "num_samples": 16, "evaluated": 16, "size": [64, 96],
-                                 "camera_size": [64, 96], "seed": 0, "split": "train",
-                                 "config_hash": manifest["config_hash"]}  # fmt: skip
+    assert report["dataset"] == {
+        "path": str(tiny_train),
+        "num_samples": 16,
+        "evaluated": 16,
+        "size": [64, 96],
+        "camera_size": [64, 96],
+        "seed": 0,
+        "split": "train",
+        "config_hash": manifest["config_hash"],
+    }
     assert report["reference_model"] is None
     assert [(r["name"], r["kind"]) for r in report["results"]] == [
-        ("last", "model"), ("dis-medium", "baseline"), ("zero", "baseline"), ("shifted", "baseline")]  # fmt: skip
+        ("last", "model"),
+        ("dis-medium", "baseline"),
+        ("zero", "baseline"),
+        ("shifted", "baseline"),
+    ]
     for r in report["results"]:
         assert set(r) == {"name", "kind", "refined", *KEYS, "ms_per_pair", "groups", "pairs", "unregistered"}
         assert [p["id"] for p in r["pairs"]] == [s["params"]["sample_id"] for s in _samples(tiny_train)]
@@ -123,8 +134,9 @@ def test_zero_predictor_and_shifted_oracle_give_hand_computed_metrics(report, ti
     assert zero["s0-10"] == pytest.approx(mag[mag < 10].mean(), rel=1e-9)
     assert zero["s40+"] is None and not (mag > 40).any()
     assert zero["px1"] == pytest.approx((mag > 1).mean(), rel=1e-9)
-    role0 = np.concatenate([m for m, s in zip(mags, samples, strict=True)
-                            if s["params"]["role"] == "natural_on_generated"])  # fmt: skip
+    role0 = np.concatenate(
+        [m for m, s in zip(mags, samples, strict=True) if s["params"]["role"] == "natural_on_generated"]
+    )
     assert zero["groups"]["role"]["natural_on_generated"]["epe"] == pytest.approx(role0.mean(), rel=1e-9)
 
     shifted = res["shifted"]
@@ -185,8 +197,10 @@ def test_per_pair_distribution_worst_pair_and_claims_are_hand_computed(tiny_trai
     assert vs["mean_pair_epe"] == pytest.approx(per_pair.mean(), rel=1e-9)
     assert vs["best_baseline_mean_pair_epe"] == pytest.approx(2.0, abs=1e-4)
     md = to_markdown(rep)
-    assert f"| half | {r['epe']:.2f} | {r['pair_median']:.2f} | {r['pair_p90']:.2f} | {r['worst_epe']:.2f} | " \
-           f"{r['worst_id']} | {100 * r['claimed']:.2f} | {r['epe_claimed']:.2f} | 1 |" in md
+    assert (
+        f"| half | {r['epe']:.2f} | {r['pair_median']:.2f} | {r['pair_p90']:.2f} | {r['worst_epe']:.2f} | "
+        f"{r['worst_id']} | {100 * r['claimed']:.2f} | {r['epe_claimed']:.2f} | 1 |" in md
+    )
     assert f"| half | 15 / 16 | {100 * vs['within']:.2f} | {vs['worst_ratio']:.2f} |" in md
 
 
@@ -249,8 +263,20 @@ def test_refine_modes_name_the_rows_and_the_raw_row_is_the_network_alone(tiny_tr
 
 def test_named_thresholds_gate_one_model(tiny_train, tiny_ckpt, tmp_path, one_line_error):
     assert parse_threshold("last-raw:px3=0.5") == ("px3", 0.5, "last-raw")
-    base = ["bench", "--data", tiny_train, "--model", tiny_ckpt, "--baselines", "none", "--limit", "2",
-            "--refine", "both", "-q"]  # fmt: skip
+    base = [
+        "bench",
+        "--data",
+        tiny_train,
+        "--model",
+        tiny_ckpt,
+        "--baselines",
+        "none",
+        "--limit",
+        "2",
+        "--refine",
+        "both",
+        "-q",
+    ]
     result = _cli(*base, "--fail-above", "last-raw:epe=0.0001", "--fail-above", "last:epe=1e9")
     assert result.exit_code == 1, (result.stderr, result.exception)
     lines = result.stderr.strip().splitlines()
@@ -300,14 +326,32 @@ def test_errors_name_the_path(tiny_train, tmp_path, one_line_error):
     blocker = tmp_path / "blocker"
     blocker.write_bytes(b"a file where a folder is needed")
     report = tmp_path / "out" / "r.json"
-    one_line_error(_cli("bench", "--data", tiny_train, "--baselines", "dis-fast", "--limit", "1", "--model",
-                        "reference", "--json", report, "--markdown", blocker / "r.md", "-q"), blocker / "r.md")
+    one_line_error(
+        _cli(
+            "bench",
+            "--data",
+            tiny_train,
+            "--baselines",
+            "dis-fast",
+            "--limit",
+            "1",
+            "--model",
+            "reference",
+            "--json",
+            report,
+            "--markdown",
+            blocker / "r.md",
+            "-q",
+        ),
+        blocker / "r.md",
+    )
     assert not report.exists()  # both outputs or neither
 
 
 def test_track_rows_carry_every_metric_the_jitter_and_how_frames_were_registered(tiny_sequences, tiny_ckpt):
-    report = run_bench(tiny_sequences, models=[tiny_ckpt], baselines=["dis-fast", "sift-ransac"], device=CPU,
-                       track=True)  # fmt: skip
+    report = run_bench(
+        tiny_sequences, models=[tiny_ckpt], baselines=["dis-fast", "sift-ransac"], device=CPU, track=True
+    )
     rows = _by_name(report)
     assert list(rows) == ["last", "last+track", "dis-fast", "sift-ransac", "dis-fast+track"]  # no sift tracking
     for name in ("last+track", "dis-fast+track"):
@@ -344,8 +388,20 @@ def test_track_needs_sequences_and_the_refinement(tiny_train, tiny_sequences, ti
 def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path, monkeypatch):
     monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
     out = tmp_path / "t.json"
-    result = _cli("bench", "--data", tiny_sequences, "--baselines", "dis-fast", "--track", "--compensation",
-                  "--limit", "1", "--json", out, "-q")  # fmt: skip
+    result = _cli(
+        "bench",
+        "--data",
+        tiny_sequences,
+        "--baselines",
+        "dis-fast",
+        "--track",
+        "--compensation",
+        "--limit",
+        "1",
+        "--json",
+        out,
+        "-q",
+    )
     assert result.exit_code == 0, (result.stderr, result.exception)
     assert "| jitter |" in result.stdout.splitlines()[0]
     rows = _by_name(json.loads(out.read_text()))

@@ -11,8 +11,16 @@ from projsynth.scene import backward, pixel_grid
 from projsynth.transforms import builtin_table
 
 H, W = 96, 128
-IDENTITY = {"contrast": 1.0, "brightness": 0.0, "beta": 1.0, "alpha": 1.0, "alpha_var": 0.0, "gamma": 0.0,
-            "noise_mu": 0.0, "noise_sigma": 0.0}
+IDENTITY = {
+    "contrast": 1.0,
+    "brightness": 0.0,
+    "beta": 1.0,
+    "alpha": 1.0,
+    "alpha_var": 0.0,
+    "gamma": 0.0,
+    "noise_mu": 0.0,
+    "noise_sigma": 0.0,
+}
 
 
 def _texture(seed):
@@ -48,19 +56,51 @@ def test_cli_writes_the_projector_image(tmp_path):
     write_flow_exr(tmp_path / "f.exr", flow, valid, "x")
     content = _texture(2)
     cv2.imwrite(str(tmp_path / "c.png"), cv2.cvtColor(content, cv2.COLOR_RGB2BGR))
-    result = CliRunner().invoke(app, ["compensate", "--content", str(tmp_path / "c.png"), "--flow",
-                                      str(tmp_path / "f.exr"), "--out", str(tmp_path / "p.png")])
+    result = CliRunner().invoke(
+        app,
+        [
+            "compensate",
+            "--content",
+            str(tmp_path / "c.png"),
+            "--flow",
+            str(tmp_path / "f.exr"),
+            "--out",
+            str(tmp_path / "p.png"),
+        ],
+    )
     assert result.exit_code == 0, result.stderr
     lit = f"{(W - 2) / W:.1%}"  # the one-line summary on success
-    assert result.stderr == f"{tmp_path / 'p.png'}: {W}x{H} projector image (geometric), content on {lit} of its " \
-                            "pixels, --fill 0 elsewhere\n"
+    assert (
+        result.stderr == f"{tmp_path / 'p.png'}: {W}x{H} projector image (geometric), content on {lit} of its "
+        "pixels, --fill 0 elsewhere\n"
+    )
     out = cv2.cvtColor(cv2.imread(str(tmp_path / "p.png")), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(out[:, :-2], content[:, 2:])  # p shows content at p + (2, 0)
     assert (out[:, -2:] == 0).all()
-    bad = CliRunner().invoke(app, ["compensate", "--content", str(tmp_path / "nope.png"), "--flow",
-                                   str(tmp_path / "f.exr"), "--out", str(tmp_path / "p.png")])
+    bad = CliRunner().invoke(
+        app,
+        [
+            "compensate",
+            "--content",
+            str(tmp_path / "nope.png"),
+            "--flow",
+            str(tmp_path / "f.exr"),
+            "--out",
+            str(tmp_path / "p.png"),
+        ],
+    )
     assert bad.exit_code == 2 and "nope.png" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
-    jpg = CliRunner().invoke(app, ["compensate", "--content", str(tmp_path / "c.png"), "--flow",
-                                   str(tmp_path / "f.exr"), "--out", str(tmp_path / "p.jpg")])  # fmt: skip
+    jpg = CliRunner().invoke(
+        app,
+        [
+            "compensate",
+            "--content",
+            str(tmp_path / "c.png"),
+            "--flow",
+            str(tmp_path / "f.exr"),
+            "--out",
+            str(tmp_path / "p.jpg"),
+        ],
+    )
     assert jpg.exit_code == 2 and "--out" in jpg.stderr and "ending in .png" in jpg.stderr
     assert not (tmp_path / "p.jpg").exists()

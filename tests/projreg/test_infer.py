@@ -49,8 +49,9 @@ def test_bf16_casts_the_feature_stages_and_keeps_flow_arithmetic_in_float32(tiny
     net = TorchNetwork(load_model(tiny_ckpt, CPU), CPU, torch.bfloat16)
     model = net.model
     assert model.feature_dtype == torch.bfloat16 and model.transformer.self_layers[0].q.weight.dtype == torch.bfloat16
-    assert all(p.dtype == torch.float32 for m in (model.propagate8, model.propagate4, model.upsampler)
-               for p in m.parameters())  # fmt: skip
+    assert all(
+        p.dtype == torch.float32 for m in (model.propagate8, model.propagate4, model.upsampler) for p in m.parameters()
+    )
     bf16 = net(img0[None], img1[None])
     assert bf16.dtype == np.float32 and np.isfinite(bf16).all()
     # bfloat16 features move the matches a little, not the frame: well under a pixel on average
@@ -79,9 +80,24 @@ def test_predict_folder_mode_in_batches_writes_what_one_by_one_writes(tiny_ckpt,
             (tmp_path / side).mkdir(exist_ok=True)
             assert cv2.imwrite(str(tmp_path / side / f"{k}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     for batch in ("1", "2"):
-        result = CliRunner().invoke(app, ["predict", "--projected", str(tmp_path / "P"), "--captured",
-                                          str(tmp_path / "C"), "--out", str(tmp_path / batch), "--model",
-                                          str(tiny_ckpt), "--no-refine", "--batch-size", batch, "-q"])  # fmt: skip
+        result = CliRunner().invoke(
+            app,
+            [
+                "predict",
+                "--projected",
+                str(tmp_path / "P"),
+                "--captured",
+                str(tmp_path / "C"),
+                "--out",
+                str(tmp_path / batch),
+                "--model",
+                str(tiny_ckpt),
+                "--no-refine",
+                "--batch-size",
+                batch,
+                "-q",
+            ],
+        )
         assert result.exit_code == 0, (result.stderr, result.exception)
     for k in range(len(pairs)):
         one, two = (read_flow_exr(tmp_path / b / f"{k}_flow.exr")[0] for b in ("1", "2"))

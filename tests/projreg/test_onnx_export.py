@@ -19,8 +19,16 @@ pytest.importorskip("onnxscript")
 
 CPU = torch.device("cpu")
 # every stage of the shipped `small`: SSJM, a shifted-window layer, the 1/4 refinement (grid_sample)
-TINY = {"feature_channels": 8, "backbone_channels": [4, 4, 8], "num_transformer_layers": 2, "ffn_dim_expansion": 1,
-        "attn_splits": 2, "refine": True, "refine_radius": 1, "upsampler_channels": 8}  # fmt: skip
+TINY = {
+    "feature_channels": 8,
+    "backbone_channels": [4, 4, 8],
+    "num_transformer_layers": 2,
+    "ffn_dim_expansion": 1,
+    "attn_splits": 2,
+    "refine": True,
+    "refine_radius": 1,
+    "upsampler_channels": 8,
+}
 
 
 def _cli(*args):
@@ -95,20 +103,36 @@ def test_predict_with_onnxruntime_writes_what_torch_writes(exported, pair, tmp_p
     flows = []
     for backend, model in (("torch", ckpt), ("onnxruntime", graph)):
         out = tmp_path / f"{backend}.exr"
-        result = _cli("predict", "--projected", a, "--captured", b, "--out", out, "--model", model, "--backend",
-                      backend, "--no-refine", "-q")  # fmt: skip
+        result = _cli(
+            "predict",
+            "--projected",
+            a,
+            "--captured",
+            b,
+            "--out",
+            out,
+            "--model",
+            model,
+            "--backend",
+            backend,
+            "--no-refine",
+            "-q",
+        )
         assert result.exit_code == 0, (result.stderr, result.exception)
         flows.append(read_flow_exr(out)[0])
     assert np.abs(flows[0] - flows[1]).max() <= 0.01
 
 
 def test_bad_export_options_are_one_line_errors(tiny_ckpt, tmp_path, one_line_error):
-    one_line_error(_cli("export", "--checkpoint", tiny_ckpt, "--onnx", tmp_path / "m.onnx", "--opset", "15"),
-                   "--opset 15", "16")  # fmt: skip
+    one_line_error(
+        _cli("export", "--checkpoint", tiny_ckpt, "--onnx", tmp_path / "m.onnx", "--opset", "15"), "--opset 15", "16"
+    )
     one_line_error(_cli("export", "--checkpoint", tiny_ckpt, "--onnx", tmp_path / "m.pt"), "--onnx", ".onnx")
     one_line_error(_cli("export", "--checkpoint", tiny_ckpt), "--out", "--onnx")
-    one_line_error(_cli("export", "--checkpoint", tiny_ckpt, "--out", tmp_path / "a.pt", "--onnx", tmp_path / "m.onnx"),
-                   "one of them")  # fmt: skip
+    one_line_error(
+        _cli("export", "--checkpoint", tiny_ckpt, "--out", tmp_path / "a.pt", "--onnx", tmp_path / "m.onnx"),
+        "one of them",
+    )
     one_line_error(_cli("export", "--checkpoint", tmp_path / "none.pt", "--onnx", tmp_path / "m.onnx"), "none.pt")
     assert not list(tmp_path.iterdir())
 

@@ -64,8 +64,19 @@ def test_folder_mode_pairs_by_relative_name(pairs, tiny_ckpt, tmp_path):
         _write(tmp_path / "P" / name, img0)
         _write(tmp_path / "C" / name, img1)
     out, viz = tmp_path / "out", tmp_path / "viz"
-    result = _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--viz", viz,
-                  "--model", tiny_ckpt, "--no-refine")  # fmt: skip
+    result = _cli(
+        "--projected",
+        tmp_path / "P",
+        "--captured",
+        tmp_path / "C",
+        "--out",
+        out,
+        "--viz",
+        viz,
+        "--model",
+        tiny_ckpt,
+        "--no-refine",
+    )
     assert result.exit_code == 0, (result.stderr, result.exception)
     model = load_model(tiny_ckpt, CPU)
     for name, stem, (img0, img1) in zip(names, ["x_flow", "sub/y_flow"], pairs, strict=True):
@@ -94,8 +105,9 @@ def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_p
     big0, big1 = (np.repeat(np.repeat(i, 2, axis=0), 2, axis=1) for i in (img0, img1))
     a, b = _write(tmp_path / "a.png", big0), _write(tmp_path / "b.png", big1)
     out = tmp_path / "f.exr"
-    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt, "--max-side", "96",
-                  "--no-refine")  # fmt: skip
+    result = _cli(
+        "--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt, "--max-side", "96", "--no-refine"
+    )
     assert result.exit_code == 0, (result.stderr, result.exception)
     flow, _, _ = read_flow_exr(out)
     assert flow.shape == (128, 192, 2)
@@ -121,19 +133,22 @@ def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeyp
     for side in ("P", "C"):
         _write(tmp_path / side / "both.png", img0)
     lonely = _write(tmp_path / "C" / "lonely.png", img1)
-    one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m),
-                    lonely)  # fmt: skip
+    one_line_error(
+        _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m), lonely
+    )
     one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
     one_line_error(_cli("--projected", a, "--captured", b, "--out", tmp_path / "f.png", *m), "--out", "ending in .exr")
-    one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", tmp_path / "v.exr", *m), "--viz",
-                   "ending in .png")  # fmt: skip
+    one_line_error(
+        _cli("--projected", a, "--captured", b, "--out", out, "--viz", tmp_path / "v.exr", *m),
+        "--viz",
+        "ending in .png",
+    )
     blocker = tmp_path / "blocker"
     blocker.write_bytes(b"a file where the --viz folder would be")
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", blocker / "v.png", *m), blocker)
     assert not out.exists()  # the flow and its picture, or neither
     monkeypatch.setattr(projreg.checkpoint, "reference_checkpoint", lambda: None)
-    one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet",
-                    "--model")  # fmt: skip
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet", "--model")
 
 
 def test_track_mode_takes_the_frames_in_name_order_from_the_previous_flow(tiny_sequences, tiny_ckpt, tmp_path):
@@ -147,8 +162,9 @@ def test_track_mode_takes_the_frames_in_name_order_from_the_previous_flow(tiny_s
         _write(tmp_path / "P" / name, s["projected"])
         _write(tmp_path / "C" / name, s["captured"])
     out = tmp_path / "out"
-    result = _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--model", tiny_ckpt,
-                  "--track")  # fmt: skip
+    result = _cli(
+        "--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--model", tiny_ckpt, "--track"
+    )
     assert result.exit_code == 0, (result.stderr, result.exception)
     steps = [read_flow_exr(out / f"{i:02d}_flow.exr")[2]["tracking"] for i in range(3)]
     assert steps[0] == "full" and set(steps[1:]) <= {"tracked", "lost"}
@@ -165,9 +181,26 @@ def test_track_mode_takes_the_frames_in_name_order_from_the_previous_flow(tiny_s
 
 def test_track_mode_errors_name_the_option(pairs, tiny_ckpt, tmp_path, one_line_error):
     a, b = _write(tmp_path / "a.png", pairs[0][0]), _write(tmp_path / "b.png", pairs[0][1])
-    one_line_error(_cli("--projected", a, "--captured", b, "--out", tmp_path / "f.exr", "--model", tiny_ckpt,
-                        "--track"), "--track", "folders")  # fmt: skip
+    one_line_error(
+        _cli("--projected", a, "--captured", b, "--out", tmp_path / "f.exr", "--model", tiny_ckpt, "--track"),
+        "--track",
+        "folders",
+    )
     (tmp_path / "P").mkdir()
     (tmp_path / "C").mkdir()
-    one_line_error(_cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o",
-                        "--model", tiny_ckpt, "--track", "--no-refine"), "--track", "--no-refine")  # fmt: skip
+    one_line_error(
+        _cli(
+            "--projected",
+            tmp_path / "P",
+            "--captured",
+            tmp_path / "C",
+            "--out",
+            tmp_path / "o",
+            "--model",
+            tiny_ckpt,
+            "--track",
+            "--no-refine",
+        ),
+        "--track",
+        "--no-refine",
+    )

@@ -33,8 +33,14 @@ GATE = json.loads(Path(__file__).with_name("reference_gate.json").read_text())
 @pytest.fixture(scope="module")
 def gate_data(tmp_path_factory):
     spec = GATE["data"]
-    plan = resolve_plan(size=tuple(spec["size"]), seed=spec["seed"], split=spec["split"], pairs=spec["pairs"],
-                        transforms=spec["transforms"], blend="paper")  # fmt: skip
+    plan = resolve_plan(
+        size=tuple(spec["size"]),
+        seed=spec["seed"],
+        split=spec["split"],
+        pairs=spec["pairs"],
+        transforms=spec["transforms"],
+        blend="paper",
+    )
     root = tmp_path_factory.mktemp("gate") / "test"
     generate(plan, root, shard_size=16)
     return root
@@ -43,8 +49,18 @@ def gate_data(tmp_path_factory):
 @pytest.fixture(scope="module")
 def gate_report(gate_data, tmp_path_factory):
     out = tmp_path_factory.mktemp("gate") / "bench.json"
-    args = ["bench", "--data", str(gate_data), "--baselines", ",".join(GATE["baselines"]), "--refine", "both",
-            "--json", str(out), "-q"]  # fmt: skip
+    args = [
+        "bench",
+        "--data",
+        str(gate_data),
+        "--baselines",
+        ",".join(GATE["baselines"]),
+        "--refine",
+        "both",
+        "--json",
+        str(out),
+        "-q",
+    ]
     for metric, limit in GATE["fail_above"].items():
         args += ["--fail-above", f"{metric}={limit}"]
     result = CliRunner().invoke(app, args)

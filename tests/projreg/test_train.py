@@ -20,8 +20,19 @@ from .conftest import make_shards
 
 
 def _cfg(data, out, **kw):
-    base = {"data": [str(data)], "out": str(out), "model": "small", "steps": 60, "batch_size": 2, "seed": 3,
-            "workers": 0, "crop": None, "log_every": 1, "ckpt_every": 10, "val_every": 1000}
+    base = {
+        "data": [str(data)],
+        "out": str(out),
+        "model": "small",
+        "steps": 60,
+        "batch_size": 2,
+        "seed": 3,
+        "workers": 0,
+        "crop": None,
+        "log_every": 1,
+        "ckpt_every": 10,
+        "val_every": 1000,
+    }
     return TrainConfig(**(base | kw))
 
 
@@ -99,8 +110,27 @@ def test_missing_dataset_is_one_clear_error(tmp_path):
 
 
 def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
-    args = [sys.executable, "-m", "projreg.cli", "train", "--data", str(tiny_train), "--steps", "40",
-            "--batch-size", "2", "--seed", "3", "--workers", "0", "--crop", "none", "--ckpt-every", "5", "--quiet"]
+    args = [
+        sys.executable,
+        "-m",
+        "projreg.cli",
+        "train",
+        "--data",
+        str(tiny_train),
+        "--steps",
+        "40",
+        "--batch-size",
+        "2",
+        "--seed",
+        "3",
+        "--workers",
+        "0",
+        "--crop",
+        "none",
+        "--ckpt-every",
+        "5",
+        "--quiet",
+    ]
     ref = tmp_path / "ref"
     subprocess.run(args + ["--out", str(ref)], check=True)
     run = tmp_path / "run"
@@ -119,12 +149,39 @@ def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
 
 def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
     run = tmp_path / "ddp"
-    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m",
-                "projreg.cli"]
+    torchrun = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        "-m",
+        "projreg.cli",
+    ]
     env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}  # an abort shows every thread's stack
-    done = subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3",
-                                      "--batch-size", "1", "--workers", "0", "--crop", "none"],
-                          env=env, timeout=300, capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        torchrun
+        + [
+            "train",
+            "--data",
+            str(tiny_train),
+            "--out",
+            str(run),
+            "--steps",
+            "3",
+            "--batch-size",
+            "1",
+            "--workers",
+            "0",
+            "--crop",
+            "none",
+        ],
+        env=env,
+        timeout=300,
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-6000:]
     assert done.stderr.count(f"{run}: step 3, loss ") == 1  # rank 0 alone prints (and draws the bar)
     sums = __import__("json").loads((run / "ddp_params.json").read_text())
@@ -151,8 +208,26 @@ def test_sigint_stops_after_the_step_in_flight_with_a_checkpoint_and_resume_cont
 
 
 def test_train_summary_is_rounded_and_a_no_op_resume_says_so(tiny_train, tiny_val, tmp_path):
-    args = ["train", "--data", str(tiny_train), "--val", str(tiny_val), "--out", str(tmp_path / "r"), "--steps", "2",
-            "--batch-size", "1", "--workers", "0", "--crop", "none", "--val-every", "2", "--quiet"]  # fmt: skip
+    args = [
+        "train",
+        "--data",
+        str(tiny_train),
+        "--val",
+        str(tiny_val),
+        "--out",
+        str(tmp_path / "r"),
+        "--steps",
+        "2",
+        "--batch-size",
+        "1",
+        "--workers",
+        "0",
+        "--crop",
+        "none",
+        "--val-every",
+        "2",
+        "--quiet",
+    ]
     result = CliRunner().invoke(app, args[:-1])
     assert result.exit_code == 0, result.stderr
     line = result.stderr.rsplit("\r", 1)[-1].strip().splitlines()[-1]
@@ -168,12 +243,38 @@ def test_torchrun_worker_error_is_one_line_and_exit_2(tiny_train, tmp_path):
     run = tmp_path / "ddp"
     (run / "checkpoints").mkdir(parents=True)
     (run / "checkpoints" / "last.pt").write_bytes(b"a run already here")
-    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m",
-                "projreg.cli"]
+    torchrun = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        "-m",
+        "projreg.cli",
+    ]
     env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}
-    done = subprocess.run(torchrun + ["train", "--data", str(tiny_train), "--out", str(run), "--steps", "3",
-                                      "--workers", "0", "--crop", "none", "--quiet"],
-                          env=env, timeout=300, capture_output=True, text=True)  # fmt: skip
+    done = subprocess.run(
+        torchrun
+        + [
+            "train",
+            "--data",
+            str(tiny_train),
+            "--out",
+            str(run),
+            "--steps",
+            "3",
+            "--workers",
+            "0",
+            "--crop",
+            "none",
+            "--quiet",
+        ],
+        env=env,
+        timeout=300,
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode != 0
     assert f"projreg: error: --out {run}: already holds a run" in done.stderr
     assert "exitcode  : 2" in done.stderr and "Fatal Python error" not in done.stderr
@@ -253,8 +354,9 @@ def test_export_refuses_to_overwrite_its_source_and_resume_refuses_an_export(tin
     train(_cfg(tiny_train, run, steps=2))
     last = run / "checkpoints" / "last.pt"
     before = last.read_bytes()
-    one_line_error(CliRunner().invoke(app, ["export", "--checkpoint", str(last), "--out", str(last)]), last,
-                   "another file")  # fmt: skip
+    one_line_error(
+        CliRunner().invoke(app, ["export", "--checkpoint", str(last), "--out", str(last)]), last, "another file"
+    )
     assert last.read_bytes() == before  # the training state survives
     export_checkpoint(last, tmp_path / "slim.pt")
     (tmp_path / "slim.pt").replace(last)  # a user copies an export over last.pt
@@ -308,8 +410,28 @@ def test_init_of_another_architecture_or_a_changed_init_on_resume_is_refused(tin
 
 
 def test_init_through_the_cli_as_a_user_fine_tunes(tiny_train, tiny_ckpt, tmp_path, one_line_error):
-    args = ["train", "--data", tiny_train, "--steps", "2", "--batch-size", "1", "--workers", "0", "--crop", "none",
-            "--init", tiny_ckpt, "--lr", "1e-4", "--schedule-steps", "2", "--warmup-steps", "1", "-q"]  # fmt: skip
+    args = [
+        "train",
+        "--data",
+        tiny_train,
+        "--steps",
+        "2",
+        "--batch-size",
+        "1",
+        "--workers",
+        "0",
+        "--crop",
+        "none",
+        "--init",
+        tiny_ckpt,
+        "--lr",
+        "1e-4",
+        "--schedule-steps",
+        "2",
+        "--warmup-steps",
+        "1",
+        "-q",
+    ]
     run = tmp_path / "ft"
     result = CliRunner().invoke(app, [str(a) for a in [*args, "--out", run]])
     assert result.exit_code == 0, (result.stderr, result.exception)

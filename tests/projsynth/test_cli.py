@@ -61,16 +61,18 @@ def test_gen_rejects_bad_options(cli, tmp_path, extra, option):
 def test_gen_natural_without_generated(cli, tmp_path):
     (tmp_path / "nat").mkdir()
     out = tmp_path / "ds"
-    cli.assert_one_line_error(cli.run("gen", "--out", out, *SMALL, "--natural", tmp_path / "nat"),
-                              "--natural", "--generated")  # fmt: skip
+    cli.assert_one_line_error(
+        cli.run("gen", "--out", out, *SMALL, "--natural", tmp_path / "nat"), "--natural", "--generated"
+    )
     assert not out.exists()
 
 
 def test_gen_empty_image_folder(cli, tmp_path):
     for name in ("nat", "gen"):
         (tmp_path / name).mkdir()
-    result = cli.run("gen", "--out", tmp_path / "ds", *SMALL, "--natural", tmp_path / "nat",
-                     "--generated", tmp_path / "gen")  # fmt: skip
+    result = cli.run(
+        "gen", "--out", tmp_path / "ds", *SMALL, "--natural", tmp_path / "nat", "--generated", tmp_path / "gen"
+    )
     cli.assert_one_line_error(result, "--natural", tmp_path / "nat")
 
 
@@ -158,8 +160,9 @@ def test_an_edited_table_changes_the_config_hash(cli, builtin_toml, planar_ds, c
     assert edited.read_text() != text
     cli.assert_one_line_error(
         cli.run("gen", "--out", copy_dataset(planar_ds), *cli.PLANAR, "--shard-size", "8", "--table", edited),
-        "--out", "made with other options",
-    )  # fmt: skip
+        "--out",
+        "made with other options",
+    )
 
 
 def _first_row_edit(text: str, old: str, new: str) -> str:
@@ -180,8 +183,14 @@ BAD_TABLES = {
     "duplicate id": lambda t: _first_row_edit(t, "id = 1\n", "id = 0\n"),
     "not utf-8": lambda t: "\udcff",
 }
-NEEDLES = {"low > high": "baseline_deg", "out of bounds": "baseline_deg", "unknown family": "torus",
-           "unknown parameter": "baseline_rad", "missing range": "tilt_deg", "missing keys": "geometry"}  # fmt: skip
+NEEDLES = {
+    "low > high": "baseline_deg",
+    "out of bounds": "baseline_deg",
+    "unknown family": "torus",
+    "unknown parameter": "baseline_rad",
+    "missing range": "tilt_deg",
+    "missing keys": "geometry",
+}
 
 
 @pytest.mark.parametrize("command", ["gen", "transforms"])
@@ -204,11 +213,15 @@ def test_a_small_user_table(cli, builtin_toml, tmp_path):
     text = builtin_toml.read_text()
     rows = text.split("[[transform]]\n")
     small = tmp_path / "two.toml"  # rows 37 and 157 of the built-in table, renumbered 0 and 1
-    small.write_text('version = "two"\n\n' + "".join("[[transform]]\n" + re.sub(r"^id = \d+", f"id = {i}", r)
-                                                 for i, r in enumerate((rows[38], rows[158]))))  # fmt: skip
+    small.write_text(
+        'version = "two"\n\n'
+        + "".join("[[transform]]\n" + re.sub(r"^id = \d+", f"id = {i}", r) for i, r in enumerate((rows[38], rows[158])))
+    )
     listing = json.loads(cli.run("transforms", "--json", "--table", small).stdout)
     assert listing["version"] == "two" and [t["name"] for t in listing["transforms"]] == [
-        "lens-s4-daylight", "bumps-s4-daylight"]  # fmt: skip
+        "lens-s4-daylight",
+        "bumps-s4-daylight",
+    ]
     cli.assert_one_line_error(cli.run("gen", "--out", tmp_path / "x", *SMALL, "--table", small), "--transforms")
     out = tmp_path / "ds"
     result = cli.run("gen", "--out", out, "--pairs", "1", "--size", "48x64", "--table", small, "-q")
@@ -225,8 +238,10 @@ def test_a_dataset_from_another_generator_version_is_named_not_resumed(cli, plan
     (root / "dataset.json").write_text(json.dumps({**plan, "generator": "projsynth 0.1.0"}))
     cli.assert_one_line_error(
         cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8"),
-        "--out", "made by projsynth 0.1.0", "delete it to regenerate",
-    )  # fmt: skip
+        "--out",
+        "made by projsynth 0.1.0",
+        "delete it to regenerate",
+    )
 
 
 # --- usage errors through the console entry points --------------------------------------------------
@@ -235,17 +250,23 @@ USAGE_ERRORS = [
     ("projsynth", ["gen", "--out", "x", "--pairs", "abc"], "Invalid value for '--pairs'", "projsynth gen --help"),
     ("projsynth", ["gen"], "Missing option '--out'", "projsynth gen --help"),
     ("projsynth", ["nope"], "No such command 'nope'", "projsynth --help"),
-    ("projreg", ["train", "--data", "d", "--out", "o", "--steps", "x"], "Invalid value for '--steps'",
-     "projreg train --help"),
+    (
+        "projreg",
+        ["train", "--data", "d", "--out", "o", "--steps", "x"],
+        "Invalid value for '--steps'",
+        "projreg train --help",
+    ),
     ("projreg", ["predict", "--max-side", "abc"], "Invalid value for '--max-side'", "projreg predict --help"),
-]  # fmt: skip
+]
 
 
-@pytest.mark.parametrize(("tool", "args", "message", "hint"), USAGE_ERRORS,
-                         ids=[" ".join(a) for _, a, _, _ in USAGE_ERRORS])  # fmt: skip
+@pytest.mark.parametrize(
+    ("tool", "args", "message", "hint"), USAGE_ERRORS, ids=[" ".join(a) for _, a, _, _ in USAGE_ERRORS]
+)
 def test_usage_errors_are_one_line_from_the_console_commands(tool, args, message, hint, tmp_path):
-    done = subprocess.run([sys.executable, "-m", f"{tool}.cli", *args], capture_output=True, text=True,
-                          cwd=tmp_path, timeout=120)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", f"{tool}.cli", *args], capture_output=True, text=True, cwd=tmp_path, timeout=120
+    )
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == 2 and len(lines) == 1, (done.returncode, done.stderr)
     assert lines[0].startswith(f"{tool}: error: {message}") and lines[0].endswith(f"see `{hint}`"), lines[0]
@@ -254,15 +275,19 @@ def test_usage_errors_are_one_line_from_the_console_commands(tool, args, message
 
 def test_console_help_exits_0():
     for tool in ("projsynth", "projreg"):
-        done = subprocess.run([sys.executable, "-m", f"{tool}.cli", "--help"], capture_output=True, text=True,
-                              timeout=120)  # fmt: skip
+        done = subprocess.run(
+            [sys.executable, "-m", f"{tool}.cli", "--help"], capture_output=True, text=True, timeout=120
+        )
         assert done.returncode == 0 and "Usage:" in done.stdout, (tool, done.stderr)
 
 
 def test_an_input_error_is_one_line_with_no_bar_before_it(cli, tmp_path):
     """``projsynth verify /nonexistent``: the error, and no empty bar (``verify: 0sample``) on its line."""
-    for args in (["verify", tmp_path / "nonexistent"], ["inspect", tmp_path / "nonexistent"],
-                 ["export", tmp_path / "nonexistent", "--out", tmp_path / "x"]):  # fmt: skip
+    for args in (
+        ["verify", tmp_path / "nonexistent"],
+        ["inspect", tmp_path / "nonexistent"],
+        ["export", tmp_path / "nonexistent", "--out", tmp_path / "x"],
+    ):
         result = cli.run(*args)
         assert result.exit_code == 2
         assert result.stderr.count("\n") == 1 and "\r" not in result.stderr, repr(result.stderr)

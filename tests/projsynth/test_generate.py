@@ -39,7 +39,10 @@ def test_samples_do_not_depend_on_workers_or_shard_size(cli, planar_ds, tmp_path
 
     assert a["libraries"] == b["libraries"] and len(a["libraries"]) == 1  # the builds that wrote the bytes
     assert (a["libraries"][0]["numpy"], a["libraries"][0]["opencv"], a["libraries"][0]["numba"]) == (
-        np.__version__, cv2.__version__, numba.__version__)
+        np.__version__,
+        cv2.__version__,
+        numba.__version__,
+    )
 
     ra, rb = ShardReader(planar_ds), ShardReader(other)
     try:
@@ -259,8 +262,7 @@ def _fail_at_rename(monkeypatch):
 
 @pytest.mark.parametrize("inject", [_fail_at_open, _fail_mid_write, _fail_at_rename])
 def test_full_disk_leaves_no_shard_and_resumes(inject, monkeypatch, tmp_path):
-    plan = resolve_plan(size=parse_size("48x64"), seed=0, split="train", pairs=1, transforms="0-3",
-                        blend="paper")  # fmt: skip
+    plan = resolve_plan(size=parse_size("48x64"), seed=0, split="train", pairs=1, transforms="0-3", blend="paper")
     out = tmp_path / "ds"
     with monkeypatch.context() as m:
         inject(m)
@@ -287,8 +289,19 @@ def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
         folder.mkdir(parents=True)
         for i in range(12):
             cv2.imwrite(str(folder / f"{kind}{i}.png"), rng.integers(0, 256, (60, 80, 3), np.uint8))
-    opts = ["--natural", tmp_path / "nat", "--generated", tmp_path / "gen", "--pairs", "1", "--size", "48x64",
-            "--transforms", "0-1", "-q"]  # fmt: skip
+    opts = [
+        "--natural",
+        tmp_path / "nat",
+        "--generated",
+        tmp_path / "gen",
+        "--pairs",
+        "1",
+        "--size",
+        "48x64",
+        "--transforms",
+        "0-1",
+        "-q",
+    ]
     for name in ("a", "b"):
         result = cli.run("gen", "--out", tmp_path / name, *opts, "--shard-size", "3" if name == "a" else "4")
         assert result.exit_code == 0, (result.stderr, result.exception)
@@ -304,9 +317,13 @@ def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
         assert r0["params"]["sources"]["projected"] == names["natural"][0]
         assert r1["params"]["sources"]["projected"] == names["generated"][0]
         assert (r0["params"]["sources"]["projected_theme"], r0["params"]["sources"]["background_theme"]) == (
-            "forest", None)
+            "forest",
+            None,
+        )
         assert (r1["params"]["sources"]["projected_theme"], r1["params"]["sources"]["background_theme"]) == (
-            None, "forest")
+            None,
+            "forest",
+        )
         assert r0["projected"].shape == (48, 64, 3) and not np.array_equal(r0["projected"], r1["projected"])
     finally:
         reader.close()
@@ -406,8 +423,20 @@ def test_a_first_run_says_that_it_compiles_the_kernels(monkeypatch):
 
 # --- sequences ----------------------------------------------------------------------------------------
 
-SEQUENCE = ["--pairs", "1", "--size", "48x64", "--seed", "4", "--transforms", "0,125", "--frames", "3", "--motion",
-            "gust"]  # fmt: skip
+SEQUENCE = [
+    "--pairs",
+    "1",
+    "--size",
+    "48x64",
+    "--seed",
+    "4",
+    "--transforms",
+    "0,125",
+    "--frames",
+    "3",
+    "--motion",
+    "gust",
+]
 
 
 def test_sequences_do_not_depend_on_workers_or_shard_size_and_resume_refuses_other_frames(cli, tmp_path):
@@ -420,16 +449,22 @@ def test_sequences_do_not_depend_on_workers_or_shard_size_and_resume_refuses_oth
     assert (ma["frames"], ma["motion"], ma["num_samples"], len(ma["shards"])) == (3, "gust", 12, 4)
     assert (mb["shard_size"], len(mb["shards"])) == (63, 1)
     assert ma["samples"] == mb["samples"] and ma["config_hash"] == mb["config_hash"]
-    assert [s["id"] for s in ma["samples"][:4]] == ["train-p00000-r0-t000-f000", "train-p00000-r0-t000-f001",
-                                                     "train-p00000-r0-t000-f002", "train-p00000-r0-t125-f000"]
+    assert [s["id"] for s in ma["samples"][:4]] == [
+        "train-p00000-r0-t000-f000",
+        "train-p00000-r0-t000-f001",
+        "train-p00000-r0-t000-f002",
+        "train-p00000-r0-t125-f000",
+    ]
     for root in (a, b):
         assert cli.run("verify", root).exit_code == 0
     # the frames and the motion are part of the plan: resuming with others is refused
     for other in ([], ["--frames", "3", "--motion", "hover"]):
         result = cli.run("gen", "--out", a, *SEQUENCE[:-4], *other, "--shard-size", "3", "-q")
         cli.assert_one_line_error(result, "other options")
-    plans = [resolve_plan(size=(48, 64), seed=4, split="train", pairs=1, transforms="0,125", blend="paper", **kw)
-             for kw in ({}, {"frames": 3, "motion": "gust"}, {"frames": 4, "motion": "gust"})]  # fmt: skip
+    plans = [
+        resolve_plan(size=(48, 64), seed=4, split="train", pairs=1, transforms="0,125", blend="paper", **kw)
+        for kw in ({}, {"frames": 3, "motion": "gust"}, {"frames": 4, "motion": "gust"})
+    ]
     assert len({p.config_hash() for p in plans}) == 3
     assert plans[1].config_hash() == ma["config_hash"]
     assert "frames" not in plans[0].describe()  # single-frame plans hash as before sequences existed
@@ -443,12 +478,15 @@ def test_sequences_do_not_depend_on_workers_or_shard_size_and_resume_refuses_oth
     assert "frames is 1" in manifest_problems({**ma, "frames": 1}, a / "manifest.json")[0]
 
 
-@pytest.mark.parametrize(("args", "needle"), [
-    (["--frames", "3", "--shard-size", "4"], "--shard-size"),
-    (["--motion", "gust"], "--motion"),
-    (["--frames", "3", "--motion", "wobble"], "--motion"),
-    (["--frames", "0"], "--frames"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--frames", "3", "--shard-size", "4"], "--shard-size"),
+        (["--motion", "gust"], "--motion"),
+        (["--frames", "3", "--motion", "wobble"], "--motion"),
+        (["--frames", "0"], "--frames"),
+    ],
+)
 def test_bad_sequence_options_are_one_line_errors(cli, tmp_path, args, needle):
     result = cli.run("gen", "--out", tmp_path / "x", "--pairs", "1", "--size", "48x64", "--transforms", "0", *args)
     cli.assert_one_line_error(result, needle)

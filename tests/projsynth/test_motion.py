@@ -25,8 +25,9 @@ SIZE = (48, 64)
 
 
 def _plan(motion, frames=3, transforms="65", seed=5):
-    return resolve_plan(size=SIZE, seed=seed, split="val", pairs=1, transforms=transforms, blend="paper",
-                        frames=frames, motion=motion)  # fmt: skip
+    return resolve_plan(
+        size=SIZE, seed=seed, split="val", pairs=1, transforms=transforms, blend="paper", frames=frames, motion=motion
+    )
 
 
 @pytest.mark.parametrize("motion", MOTIONS)
@@ -38,16 +39,20 @@ def test_each_frame_holds_the_exact_flow_of_its_moved_rig(motion):
     for k in range(plan.frames):
         s = make_sample(plan, k)
         m = s.params["motion"]
-        assert (s.id, s.params["frame"], s.params["sequence"]) == (f"val-p00000-r0-t065-f{k:03d}", k,
-                                                                    "val-p00000-r0-t065")  # fmt: skip
+        assert (s.id, s.params["frame"], s.params["sequence"]) == (
+            f"val-p00000-r0-t065-f{k:03d}",
+            k,
+            "val-p00000-r0-t065",
+        )
         assert m["time_s"] == pytest.approx(k / FRAME_RATE_HZ)
         # the scene rebuilt from the recorded trajectory gives the stored flow bit for bit
         scene = moved_scene(base, *Trajectory(motion, m["trajectory"]).pose(m["time_s"]))
         flow, valid, _ = ground_truth(scene)
         np.testing.assert_array_equal(valid, s.valid)
         np.testing.assert_array_equal(flow, s.flow)
-        assert np.degrees(rotation_vector(Trajectory(motion, m["trajectory"]).pose(m["time_s"])[0])) == \
-            pytest.approx(m["rotation_deg"], abs=1e-9)  # fmt: skip
+        assert np.degrees(rotation_vector(Trajectory(motion, m["trajectory"]).pose(m["time_s"])[0])) == pytest.approx(
+            m["rotation_deg"], abs=1e-9
+        )
         # and it is exact: projected -> captured -> projected closes
         fm = forward(scene, grid)
         back, lit = backward(scene, fm.uv[:, fm.valid])

@@ -8,8 +8,16 @@ from projsynth.scene import backward, pixel_grid
 from projsynth.transforms import FAMILIES, builtin_table, draw
 
 H, W = 96, 128
-IDENTITY = {"contrast": 1.0, "brightness": 0.0, "beta": 1.0, "alpha": 1.0, "alpha_var": 0.0, "gamma": 0.0,
-            "noise_mu": 0.0, "noise_sigma": 0.0}
+IDENTITY = {
+    "contrast": 1.0,
+    "brightness": 0.0,
+    "beta": 1.0,
+    "alpha": 1.0,
+    "alpha_var": 0.0,
+    "gamma": 0.0,
+    "noise_mu": 0.0,
+    "noise_sigma": 0.0,
+}
 
 
 def _scene(family, seed=0, severity=3):
@@ -46,8 +54,15 @@ def test_flow_aligns_better_than_any_half_or_one_pixel_shift(family):
     rng = np.random.default_rng(5)
     import cv2
 
-    tex = sum(cv2.resize(rng.uniform(0, 255, (H // s, W // s, 3)).astype(np.float32), (W, H),
-                         interpolation=cv2.INTER_CUBIC) for s in (2, 4, 8)) / 3
+    tex = (
+        sum(
+            cv2.resize(
+                rng.uniform(0, 255, (H // s, W // s, 3)).astype(np.float32), (W, H), interpolation=cv2.INTER_CUBIC
+            )
+            for s in (2, 4, 8)
+        )
+        / 3
+    )
     proj = np.clip(tex, 0, 255).astype(np.uint8)
     out = render(proj, np.full_like(proj, 90), _scene(family, 1), IDENTITY, "paper", rng)
     yv, xv = np.nonzero(out.valid)
@@ -112,8 +127,14 @@ def test_valid_pixels_keep_a_margin_from_occlusion_and_silhouettes():
     from projsynth.render import EDGE_MARGIN_PX
 
     scene = _scene("sphere_convex", seed=3, severity=4)
-    out = render(np.full((H, W, 3), 128, np.uint8), np.zeros((H, W, 3), np.uint8), scene, IDENTITY, "paper",
-                 np.random.default_rng(0))  # fmt: skip
+    out = render(
+        np.full((H, W, 3), 128, np.uint8),
+        np.zeros((H, W, 3), np.uint8),
+        scene,
+        IDENTITY,
+        "paper",
+        np.random.default_rng(0),
+    )
     assert out.stats["invalid_pixels"]["near_edge"] > 0
     from projsynth.scene import forward, pixel_grid
 
@@ -184,8 +205,16 @@ def test_paper_blend_by_hand():
     assert abs(big.mean() - 110) < 0.05 and abs(big.std() - np.sqrt(36 + 1 / 12)) < 0.05
 
 
-PHYSICAL = {"ambient": 0.5, "power": 0.5, "defocus_px": 0.0, "gain": 1.0, "vignetting": 0.0, "shot_noise": 0.0,
-            "read_noise": 0.0, "response": 2.2}
+PHYSICAL = {
+    "ambient": 0.5,
+    "power": 0.5,
+    "defocus_px": 0.0,
+    "gain": 1.0,
+    "vignetting": 0.0,
+    "shot_noise": 0.0,
+    "read_noise": 0.0,
+    "response": 2.2,
+}
 
 
 def test_physical_blend_by_hand():

@@ -20,8 +20,13 @@ FORMAT1 = Path(__file__).parents[1] / "faults" / "data" / "format1"  # written b
 def test_every_fixed_size_dataset_has_fletcher32_and_the_others_a_crc(planar_ds):
     with h5py.File(planar_ds / shard_name(0), "r") as f:
         assert f.attrs["format_version"] == FORMAT_VERSION == 2
-        fixed = [name for name in f if f[name].dtype.kind not in "OV" and h5py.check_vlen_dtype(f[name].dtype) is None
-                 and h5py.check_string_dtype(f[name].dtype) is None]  # fmt: skip
+        fixed = [
+            name
+            for name in f
+            if f[name].dtype.kind not in "OV"
+            and h5py.check_vlen_dtype(f[name].dtype) is None
+            and h5py.check_string_dtype(f[name].dtype) is None
+        ]
         assert sorted(fixed) == ["captured", "crc32", "projected", "transform_id", "valid"]
         assert all(f[name].fletcher32 for name in fixed)
         assert sorted(set(f) - set(fixed)) == sorted(CRC_COLUMNS)

@@ -157,8 +157,16 @@ def test_a_folder_with_no_readable_image_names_the_folder_and_why(tmp_path):
     for i in range(4):
         cv2.imwrite(str(tmp_path / "gen" / f"g{i}.png"), np.full((40, 40, 3), 60 * i, np.uint8))
     with pytest.raises(ProjsynthError) as err:
-        resolve_plan(size=(32, 32), seed=0, split="all", pairs=1, transforms="0", blend="paper",
-                     natural=tmp_path / "nat", generated=tmp_path / "gen")  # fmt: skip
+        resolve_plan(
+            size=(32, 32),
+            seed=0,
+            split="all",
+            pairs=1,
+            transforms="0",
+            blend="paper",
+            natural=tmp_path / "nat",
+            generated=tmp_path / "gen",
+        )
     msg = str(err.value)
     assert msg.startswith("--natural: the all split has only 0 usable natural image(s) for 1 pair(s); 3 unreadable")
     assert re.search(r"nat/[abc]\.png: cannot read image", msg) and msg.endswith("; add images to the folder")
@@ -187,10 +195,12 @@ def test_fit_crops_the_centre():
 def test_fit_crop_offsets_and_interpolation():
     img = rgb_image(50, 91)
     np.testing.assert_array_equal(fit_to_size(img, (50, 50)), img[:, 20:70])  # (91 - 50) // 2 = 20
-    np.testing.assert_array_equal(fit_to_size(img, (25, 25)), cv2.resize(img[:, 20:70], (25, 25),
-                                                                          interpolation=cv2.INTER_AREA))
-    np.testing.assert_array_equal(fit_to_size(img, (120, 120)), cv2.resize(img[:, 20:70], (120, 120),
-                                                                            interpolation=cv2.INTER_CUBIC))
+    np.testing.assert_array_equal(
+        fit_to_size(img, (25, 25)), cv2.resize(img[:, 20:70], (25, 25), interpolation=cv2.INTER_AREA)
+    )
+    np.testing.assert_array_equal(
+        fit_to_size(img, (120, 120)), cv2.resize(img[:, 20:70], (120, 120), interpolation=cv2.INTER_CUBIC)
+    )
     # 50 x 91 to 2:1 -> crop 46 x 91 rows 2..47 (round(91 / 2) = 46), then enlarge.
     np.testing.assert_array_equal(fit_to_size(img, (46, 91)), img[2:48])
 
@@ -226,8 +236,12 @@ def test_list_images_bad_folders(tmp_path):
     (tmp_path / "text").mkdir()
     (tmp_path / "text" / "a.txt").write_text("x")
     (tmp_path / "file.png").write_bytes(b"x")
-    for folder, message in [("empty", "no images"), ("text", "no images"), ("missing", "does not exist"),
-                            ("file.png", "not a folder")]:
+    for folder, message in [
+        ("empty", "no images"),
+        ("text", "no images"),
+        ("missing", "does not exist"),
+        ("file.png", "not a folder"),
+    ]:
         with pytest.raises(ProjsynthError, match=message) as err:
             list_images(tmp_path / folder, "--generated")
         assert "--generated" in str(err.value) and str(tmp_path / folder) in str(err.value)
@@ -330,8 +344,16 @@ def test_real_sources_script_writes_folders_that_gen_uses_whole(tmp_path):
     natural = list_images(tmp_path / "natural", "--natural")
     generated = list_images(tmp_path / "generated", "--generated")
     assert (len(natural), len(generated)) == (12, 7)
-    plan = resolve_plan(size=(96, 128), seed=5, split="all", pairs=None, transforms="0", blend="paper",
-                        natural=tmp_path / "natural", generated=tmp_path / "generated")  # fmt: skip
+    plan = resolve_plan(
+        size=(96, 128),
+        seed=5,
+        split="all",
+        pairs=None,
+        transforms="0",
+        blend="paper",
+        natural=tmp_path / "natural",
+        generated=tmp_path / "generated",
+    )
     assert plan.pairs == 7 and not plan.skipped  # every picture loads; pairs = the smaller folder
     for path in natural + generated:
         img = load_image(path)

@@ -21,7 +21,7 @@ from projsynth.verify import bucket_of
 def _flip_middle(path: Path, n: int = 64) -> None:
     data = bytearray(path.read_bytes())
     m = len(data) // 2
-    data[m:m + n] = bytes(b ^ 0xFF for b in data[m:m + n])
+    data[m : m + n] = bytes(b ^ 0xFF for b in data[m : m + n])
     path.write_bytes(bytes(data))
 
 
@@ -96,8 +96,9 @@ def test_manifest_that_does_not_tile_the_plan_fails_verify(cli, planar_ds, copy_
     assert any(str(path) in s and message in s for s in lines), lines
 
 
-@pytest.mark.parametrize(("attr", "value"), [("first_sample", 0), ("count", 7), ("generator", "projsynth 9.9.9"),
-                                             ("format_version", 1)])  # fmt: skip
+@pytest.mark.parametrize(
+    ("attr", "value"), [("first_sample", 0), ("count", 7), ("generator", "projsynth 9.9.9"), ("format_version", 1)]
+)
 def test_shard_attribute_that_disagrees_with_the_manifest_fails_verify(cli, planar_ds, copy_dataset, attr, value):
     root = copy_dataset(planar_ds)
     shard = root / shard_name(1)
@@ -108,8 +109,11 @@ def test_shard_attribute_that_disagrees_with_the_manifest_fails_verify(cli, plan
     manifest["shards"][1]["sha256"] = file_sha256(shard)  # the file hash alone would not notice
     path.write_text(json.dumps(manifest))
     lines = _problems(cli, cli.run("verify", root, "-q"))
-    assert lines == [f"projsynth: verify: {shard}: attributes do not match the manifest (config hash, shard index, "
-                     "first sample, count, format version or generator)"]
+    assert lines == [
+        f"projsynth: verify: {shard}: attributes do not match the manifest (config hash, shard index, "
+        "first sample, count, format version or generator)"
+    ]
+
 
 MANIFEST_DAMAGE = [
     "truncated",
@@ -129,13 +133,15 @@ def test_bad_manifest_is_one_line_exit_2(cli, planar_ds, copy_dataset, damage):
     if damage == "missing":
         path.unlink()
     else:
-        path.write_bytes({
-            "truncated": text[: len(text) // 2].encode(),
-            "other format": json.dumps({**json.loads(text), "format_version": 99}).encode(),
-            "not utf-8": b"\x00\xff garbage",
-            "a list": b"[]",
-            "no keys": b'{"format_version": 1}',
-        }[damage])  # fmt: skip
+        path.write_bytes(
+            {
+                "truncated": text[: len(text) // 2].encode(),
+                "other format": json.dumps({**json.loads(text), "format_version": 99}).encode(),
+                "not utf-8": b"\x00\xff garbage",
+                "a list": b"[]",
+                "no keys": b'{"format_version": 1}',
+            }[damage]
+        )
     extra = {"verify": [], "inspect": ["--json"], "preview": ["--out", root / "x.png"], "export": ["--out", root / "x"]}
     for command, options in extra.items():
         cli.assert_one_line_error(cli.run(command, root, *options), path)
@@ -165,8 +171,13 @@ def _tamper(root: Path, k: int, edit: Callable[[dict], None], rehash: bool = Tru
     path = root / shard_name(j)
     with h5py.File(path, "r+") as f:
         flow, exr_valid, header = decode_flow_exr(f["flow_exr"][i].tobytes())
-        d = {"projected": f["projected"][i], "captured": f["captured"][i], "valid": f["valid"][i], "flow": flow,
-             "exr_valid": exr_valid}  # fmt: skip
+        d = {
+            "projected": f["projected"][i],
+            "captured": f["captured"][i],
+            "valid": f["valid"][i],
+            "flow": flow,
+            "exr_valid": exr_valid,
+        }
         edit(d)
         sid = header["sample_id"]
         f["projected"][i], f["captured"][i], f["valid"][i] = d["projected"], d["captured"], d["valid"]
@@ -232,8 +243,9 @@ def test_changed_pixel_with_a_refreshed_file_hash_is_caught_by_the_sample_hash(c
 
     sid = _tamper(root, 9, bump, rehash=False)
     lines = _problems(cli, cli.run("verify", root, "-q"))
-    assert lines == [f"projsynth: verify: {root / shard_name(1)}: sample 1 ({sid}): content hash differs "
-                     "from the manifest"]  # fmt: skip
+    assert lines == [
+        f"projsynth: verify: {root / shard_name(1)}: sample 1 ({sid}): content hash differs from the manifest"
+    ]
 
 
 # --- inspect ----------------------------------------------------------------------------------------
