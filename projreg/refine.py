@@ -218,9 +218,7 @@ class GeometricRefiner:
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
         cfg = self.config
-        plain = (to_gray(projected), to_gray(captured))
-        normalised = tuple(normalize_contrast(g, cfg.contrast_sigma) for g in plain)
-        evidence = texture_weight(plain[0], cfg.texture_floor)  # [H, W] in [0, 1]: absolute texture
+        plain, normalised, evidence = self.views(projected, captured)
         share = float((evidence >= 0.5).mean())
         if share < cfg.min_evidence:
             why = f"textureless: {100 * share:.1f}% of the projected image carries texture"
@@ -401,11 +399,15 @@ class GeometricRefiner:
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
         """The selection score of ``flow`` on a pair of uint8 RGB images, as :meth:`predict_info` scores its
         candidates (at the pair's own size): texture-weighted mean local NCC of what :meth:`seen` shows."""
-        cfg = self.config
+        plain, normalised, evidence = self.views(projected, captured)
+        return weighted_ncc(normalised[0], self.seen(flow, normalised, plain), self.config.ncc_sigma, evidence)
+
+    def views(self, projected: np.ndarray, captured: np.ndarray) -> tuple[tuple, tuple, np.ndarray]:
+        """The pair as the refinement reads it: the ``plain`` gray images, the ``normalised`` ones (local
+        contrast normalisation) and the projected image's absolute texture (``evidence``, ``(H, W)`` in [0, 1])."""
         plain = (to_gray(projected), to_gray(captured))
-        normalised = tuple(normalize_contrast(g, cfg.contrast_sigma) for g in plain)
-        evidence = texture_weight(plain[0], cfg.texture_floor)
-        return weighted_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma, evidence)
+        normalised = tuple(normalize_contrast(g, self.config.contrast_sigma) for g in plain)
+        return plain, normalised, texture_weight(plain[0], self.config.texture_floor)
 
     def seen(
         self, flow: np.ndarray, normalised: tuple[np.ndarray, np.ndarray], plain: tuple[np.ndarray, np.ndarray] | None
