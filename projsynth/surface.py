@@ -23,15 +23,7 @@ import numpy as np
 
 from .jit import jit
 
-KINDS = (
-    "plane",
-    "cylinder_convex",
-    "cylinder_concave",
-    "sphere_convex",
-    "sphere_concave",
-    "wave",
-    "bumps",
-)
+KINDS = ("plane", "cylinder_convex", "cylinder_concave", "sphere_convex", "sphere_concave", "wave", "bumps")
 PLANE, CYLINDER_CONVEX, CYLINDER_CONCAVE, SPHERE_CONVEX, SPHERE_CONCAVE, WAVE, BUMPS = range(len(KINDS))
 _HIT_TOL = 1e-9  # |g(t)| at convergence for height fields, in world units (~1e-6 px)
 _MAX_SAFE_STEPS = 48  # rays still short of the root then (near-grazing) count as misses

@@ -20,16 +20,7 @@ import numpy as np
 from . import ProjsynthError
 
 TABLE_VERSION = "builtin-v1"
-FAMILIES = (
-    "planar",
-    "lens",
-    "cylinder_convex",
-    "cylinder_concave",
-    "sphere_convex",
-    "sphere_concave",
-    "wave",
-    "bumps",
-)
+FAMILIES = ("planar", "lens", "cylinder_convex", "cylinder_concave", "sphere_convex", "sphere_concave", "wave", "bumps")
 CONDITIONS = ("studio", "night", "daylight", "translucent", "noisy")
 SEVERITIES = (1, 2, 3, 4)
 

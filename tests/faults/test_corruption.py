@@ -20,22 +20,8 @@ def _read_with(probe, command, root, tmp_path):
     if command in args:
         return probe.projsynth(*args[command])
     if command == "train":
-        return probe.projreg(
-            "train",
-            "--data",
-            root,
-            "--out",
-            tmp_path / "run",
-            "--steps",
-            "1",
-            "--batch-size",
-            "2",
-            "--crop",
-            "none",
-            "--workers",
-            "0",
-            "-q",
-        )
+        options = "--steps 1 --batch-size 2 --crop none --workers 0 -q".split()
+        return probe.projreg("train", "--data", root, "--out", tmp_path / "run", *options)
     return probe.projreg("bench", "--data", root, "--baselines", "farneback", "-q")
 
 

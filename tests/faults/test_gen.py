@@ -67,23 +67,9 @@ def test_a_fifo_among_the_sources_is_skipped_not_waited_for(probe, tmp_path):
     previous = signal.signal(signal.SIGALRM, hung)
     signal.alarm(120)
     try:
+        folders = ["--natural", tmp_path / "natural", "--generated", tmp_path / "generated"]
         result = probe.projsynth(
-            "gen",
-            "--out",
-            tmp_path / "ds",
-            "--natural",
-            tmp_path / "natural",
-            "--generated",
-            tmp_path / "generated",
-            "--split",
-            "all",
-            "--pairs",
-            "2",
-            "--size",
-            "32x32",
-            "--transforms",
-            "0",
-            "-q",
+            "gen", "--out", tmp_path / "ds", *folders, *"--split all --pairs 2 --size 32x32 --transforms 0 -q".split()
         )
     finally:
         signal.alarm(0)

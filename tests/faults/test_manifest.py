@@ -33,22 +33,8 @@ def _edit(root, change) -> None:
 
 def _run(probe, command, root, tmp_path):
     if command == "train":
-        return probe.projreg(
-            "train",
-            "--data",
-            root,
-            "--out",
-            tmp_path / "run",
-            "--steps",
-            "1",
-            "--batch-size",
-            "2",
-            "--crop",
-            "none",
-            "--workers",
-            "0",
-            "-q",
-        )
+        options = "--steps 1 --batch-size 2 --crop none --workers 0 -q".split()
+        return probe.projreg("train", "--data", root, "--out", tmp_path / "run", *options)
     if command == "bench":
         return probe.projreg("bench", "--data", root, "--baselines", "farneback", "-q")
     extra = {"inspect": [], "export": ["--out", tmp_path / "x", "-q"], "preview": ["--out", tmp_path / "p.png"]}

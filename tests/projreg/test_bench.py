@@ -263,20 +263,7 @@ def test_refine_modes_name_the_rows_and_the_raw_row_is_the_network_alone(tiny_tr
 
 def test_named_thresholds_gate_one_model(tiny_train, tiny_ckpt, tmp_path, one_line_error):
     assert parse_threshold("last-raw:px3=0.5") == ("px3", 0.5, "last-raw")
-    base = [
-        "bench",
-        "--data",
-        tiny_train,
-        "--model",
-        tiny_ckpt,
-        "--baselines",
-        "none",
-        "--limit",
-        "2",
-        "--refine",
-        "both",
-        "-q",
-    ]
+    base = ["bench", "--data", tiny_train, "--model", tiny_ckpt, *"--baselines none --limit 2 --refine both -q".split()]
     result = _cli(*base, "--fail-above", "last-raw:epe=0.0001", "--fail-above", "last:epe=1e9")
     assert result.exit_code == 1, (result.stderr, result.exception)
     lines = result.stderr.strip().splitlines()
@@ -326,25 +313,9 @@ def test_errors_name_the_path(tiny_train, tmp_path, one_line_error):
     blocker = tmp_path / "blocker"
     blocker.write_bytes(b"a file where a folder is needed")
     report = tmp_path / "out" / "r.json"
-    one_line_error(
-        _cli(
-            "bench",
-            "--data",
-            tiny_train,
-            "--baselines",
-            "dis-fast",
-            "--limit",
-            "1",
-            "--model",
-            "reference",
-            "--json",
-            report,
-            "--markdown",
-            blocker / "r.md",
-            "-q",
-        ),
-        blocker / "r.md",
-    )
+    options = "--baselines dis-fast --limit 1 --model reference".split()
+    result = _cli("bench", "--data", tiny_train, *options, "--json", report, "--markdown", blocker / "r.md", "-q")
+    one_line_error(result, blocker / "r.md")
     assert not report.exists()  # both outputs or neither
 
 
@@ -388,20 +359,8 @@ def test_track_needs_sequences_and_the_refinement(tiny_train, tiny_sequences, ti
 def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path, monkeypatch):
     monkeypatch.setattr(projreg.bench, "reference_checkpoint", lambda: None)
     out = tmp_path / "t.json"
-    result = _cli(
-        "bench",
-        "--data",
-        tiny_sequences,
-        "--baselines",
-        "dis-fast",
-        "--track",
-        "--compensation",
-        "--limit",
-        "1",
-        "--json",
-        out,
-        "-q",
-    )
+    options = "--baselines dis-fast --track --compensation --limit 1".split()
+    result = _cli("bench", "--data", tiny_sequences, *options, "--json", out, "-q")
     assert result.exit_code == 0, (result.stderr, result.exception)
     assert "| jitter |" in result.stdout.splitlines()[0]
     rows = _by_name(json.loads(out.read_text()))

@@ -79,25 +79,10 @@ def test_predict_folder_mode_in_batches_writes_what_one_by_one_writes(tiny_ckpt,
         for side, rgb in (("P", img0), ("C", img1)):
             (tmp_path / side).mkdir(exist_ok=True)
             assert cv2.imwrite(str(tmp_path / side / f"{k}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    folders = ["--projected", str(tmp_path / "P"), "--captured", str(tmp_path / "C")]
     for batch in ("1", "2"):
-        result = CliRunner().invoke(
-            app,
-            [
-                "predict",
-                "--projected",
-                str(tmp_path / "P"),
-                "--captured",
-                str(tmp_path / "C"),
-                "--out",
-                str(tmp_path / batch),
-                "--model",
-                str(tiny_ckpt),
-                "--no-refine",
-                "--batch-size",
-                batch,
-                "-q",
-            ],
-        )
+        args = ["predict", *folders, "--out", str(tmp_path / batch), "--model", str(tiny_ckpt), "--no-refine"]
+        result = CliRunner().invoke(app, [*args, "--batch-size", batch, "-q"])
         assert result.exit_code == 0, (result.stderr, result.exception)
     for k in range(len(pairs)):
         one, two = (read_flow_exr(tmp_path / b / f"{k}_flow.exr")[0] for b in ("1", "2"))

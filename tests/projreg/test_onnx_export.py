@@ -100,24 +100,11 @@ def test_predict_with_onnxruntime_writes_what_torch_writes(exported, pair, tmp_p
     a, b = tmp_path / "a.png", tmp_path / "b.png"
     for path, rgb in ((a, pair[0]), (b, pair[1])):
         assert cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    inputs = ["--projected", a, "--captured", b]
     flows = []
     for backend, model in (("torch", ckpt), ("onnxruntime", graph)):
         out = tmp_path / f"{backend}.exr"
-        result = _cli(
-            "predict",
-            "--projected",
-            a,
-            "--captured",
-            b,
-            "--out",
-            out,
-            "--model",
-            model,
-            "--backend",
-            backend,
-            "--no-refine",
-            "-q",
-        )
+        result = _cli("predict", *inputs, "--out", out, "--model", model, "--backend", backend, "--no-refine", "-q")
         assert result.exit_code == 0, (result.stderr, result.exception)
         flows.append(read_flow_exr(out)[0])
     assert np.abs(flows[0] - flows[1]).max() <= 0.01

@@ -64,19 +64,8 @@ def test_folder_mode_pairs_by_relative_name(pairs, tiny_ckpt, tmp_path):
         _write(tmp_path / "P" / name, img0)
         _write(tmp_path / "C" / name, img1)
     out, viz = tmp_path / "out", tmp_path / "viz"
-    result = _cli(
-        "--projected",
-        tmp_path / "P",
-        "--captured",
-        tmp_path / "C",
-        "--out",
-        out,
-        "--viz",
-        viz,
-        "--model",
-        tiny_ckpt,
-        "--no-refine",
-    )
+    folders = ["--projected", tmp_path / "P", "--captured", tmp_path / "C"]
+    result = _cli(*folders, "--out", out, "--viz", viz, "--model", tiny_ckpt, "--no-refine")
     assert result.exit_code == 0, (result.stderr, result.exception)
     model = load_model(tiny_ckpt, CPU)
     for name, stem, (img0, img1) in zip(names, ["x_flow", "sub/y_flow"], pairs, strict=True):
@@ -188,19 +177,6 @@ def test_track_mode_errors_name_the_option(pairs, tiny_ckpt, tmp_path, one_line_
     )
     (tmp_path / "P").mkdir()
     (tmp_path / "C").mkdir()
-    one_line_error(
-        _cli(
-            "--projected",
-            tmp_path / "P",
-            "--captured",
-            tmp_path / "C",
-            "--out",
-            tmp_path / "o",
-            "--model",
-            tiny_ckpt,
-            "--track",
-            "--no-refine",
-        ),
-        "--track",
-        "--no-refine",
-    )
+    folders = ["--projected", tmp_path / "P", "--captured", tmp_path / "C"]
+    result = _cli(*folders, "--out", tmp_path / "o", "--model", tiny_ckpt, "--track", "--no-refine")
+    one_line_error(result, "--track", "--no-refine")

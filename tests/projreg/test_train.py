@@ -110,27 +110,8 @@ def test_missing_dataset_is_one_clear_error(tmp_path):
 
 
 def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
-    args = [
-        sys.executable,
-        "-m",
-        "projreg.cli",
-        "train",
-        "--data",
-        str(tiny_train),
-        "--steps",
-        "40",
-        "--batch-size",
-        "2",
-        "--seed",
-        "3",
-        "--workers",
-        "0",
-        "--crop",
-        "none",
-        "--ckpt-every",
-        "5",
-        "--quiet",
-    ]
+    options = "--steps 40 --batch-size 2 --seed 3 --workers 0 --crop none --ckpt-every 5 --quiet".split()
+    args = [sys.executable, "-m", "projreg.cli", "train", "--data", str(tiny_train), *options]
     ref = tmp_path / "ref"
     subprocess.run(args + ["--out", str(ref)], check=True)
     run = tmp_path / "run"
@@ -149,34 +130,11 @@ def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
 
 def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
     run = tmp_path / "ddp"
-    torchrun = [
-        sys.executable,
-        "-m",
-        "torch.distributed.run",
-        "--standalone",
-        "--nproc_per_node",
-        "2",
-        "-m",
-        "projreg.cli",
-    ]
+    torchrun = [sys.executable, *"-m torch.distributed.run --standalone --nproc_per_node 2 -m projreg.cli".split()]
     env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}  # an abort shows every thread's stack
+    options = "--steps 3 --batch-size 1 --workers 0 --crop none".split()
     done = subprocess.run(
-        torchrun
-        + [
-            "train",
-            "--data",
-            str(tiny_train),
-            "--out",
-            str(run),
-            "--steps",
-            "3",
-            "--batch-size",
-            "1",
-            "--workers",
-            "0",
-            "--crop",
-            "none",
-        ],
+        torchrun + ["train", "--data", str(tiny_train), "--out", str(run), *options],
         env=env,
         timeout=300,
         capture_output=True,
@@ -208,26 +166,8 @@ def test_sigint_stops_after_the_step_in_flight_with_a_checkpoint_and_resume_cont
 
 
 def test_train_summary_is_rounded_and_a_no_op_resume_says_so(tiny_train, tiny_val, tmp_path):
-    args = [
-        "train",
-        "--data",
-        str(tiny_train),
-        "--val",
-        str(tiny_val),
-        "--out",
-        str(tmp_path / "r"),
-        "--steps",
-        "2",
-        "--batch-size",
-        "1",
-        "--workers",
-        "0",
-        "--crop",
-        "none",
-        "--val-every",
-        "2",
-        "--quiet",
-    ]
+    args = ["train", "--data", str(tiny_train), "--val", str(tiny_val), "--out", str(tmp_path / "r")]
+    args += "--steps 2 --batch-size 1 --workers 0 --crop none --val-every 2 --quiet".split()
     result = CliRunner().invoke(app, args[:-1])
     assert result.exit_code == 0, result.stderr
     line = result.stderr.rsplit("\r", 1)[-1].strip().splitlines()[-1]
@@ -243,33 +183,11 @@ def test_torchrun_worker_error_is_one_line_and_exit_2(tiny_train, tmp_path):
     run = tmp_path / "ddp"
     (run / "checkpoints").mkdir(parents=True)
     (run / "checkpoints" / "last.pt").write_bytes(b"a run already here")
-    torchrun = [
-        sys.executable,
-        "-m",
-        "torch.distributed.run",
-        "--standalone",
-        "--nproc_per_node",
-        "2",
-        "-m",
-        "projreg.cli",
-    ]
+    torchrun = [sys.executable, *"-m torch.distributed.run --standalone --nproc_per_node 2 -m projreg.cli".split()]
     env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}
+    options = "--steps 3 --workers 0 --crop none --quiet".split()
     done = subprocess.run(
-        torchrun
-        + [
-            "train",
-            "--data",
-            str(tiny_train),
-            "--out",
-            str(run),
-            "--steps",
-            "3",
-            "--workers",
-            "0",
-            "--crop",
-            "none",
-            "--quiet",
-        ],
+        torchrun + ["train", "--data", str(tiny_train), "--out", str(run), *options],
         env=env,
         timeout=300,
         capture_output=True,
@@ -410,28 +328,8 @@ def test_init_of_another_architecture_or_a_changed_init_on_resume_is_refused(tin
 
 
 def test_init_through_the_cli_as_a_user_fine_tunes(tiny_train, tiny_ckpt, tmp_path, one_line_error):
-    args = [
-        "train",
-        "--data",
-        tiny_train,
-        "--steps",
-        "2",
-        "--batch-size",
-        "1",
-        "--workers",
-        "0",
-        "--crop",
-        "none",
-        "--init",
-        tiny_ckpt,
-        "--lr",
-        "1e-4",
-        "--schedule-steps",
-        "2",
-        "--warmup-steps",
-        "1",
-        "-q",
-    ]
+    args = ["train", "--data", tiny_train, *"--steps 2 --batch-size 1 --workers 0 --crop none".split()]
+    args += ["--init", tiny_ckpt, *"--lr 1e-4 --schedule-steps 2 --warmup-steps 1 -q".split()]
     run = tmp_path / "ft"
     result = CliRunner().invoke(app, [str(a) for a in [*args, "--out", run]])
     assert result.exit_code == 0, (result.stderr, result.exception)

@@ -24,30 +24,10 @@ class Cli:
     # 40 samples of one pair, planar family only: 5 shards of 8 (the determinism/resume reference).
     PLANAR = ["--pairs", "1", "--size", "64x96", "--seed", "11", "--transforms", "0-19"]
     # 16 samples, one transform of each of the 8 families, physical blend: 4 shards of 5, 5, 5, 1.
-    MIXED = [
-        "--pairs",
-        "1",
-        "--size",
-        "48x64",
-        "--seed",
-        "3",
-        "--transforms",
-        "0,37,45,77,85,117,125,157",
-        "--blend",
-        "physical",
-        "--shard-size",
-        "5",
-    ]
-    MIXED_FAMILIES = [
-        "planar",
-        "lens",
-        "cylinder_convex",
-        "cylinder_concave",
-        "sphere_convex",
-        "sphere_concave",
-        "wave",
-        "bumps",
-    ]
+    MIXED = (
+        "--pairs 1 --size 48x64 --seed 3 --transforms 0,37,45,77,85,117,125,157 --blend physical --shard-size 5"
+    ).split()
+    MIXED_FAMILIES = "planar lens cylinder_convex cylinder_concave sphere_convex sphere_concave wave bumps".split()
     ERROR_PREFIX = "projsynth: error: "
     _SUMMARY = re.compile(r"(\d+) shards written, (\d+) already done, (\d+) in the plan")
 

@@ -289,19 +289,8 @@ def test_gen_from_image_folders_is_deterministic(cli, tmp_path):
         folder.mkdir(parents=True)
         for i in range(12):
             cv2.imwrite(str(folder / f"{kind}{i}.png"), rng.integers(0, 256, (60, 80, 3), np.uint8))
-    opts = [
-        "--natural",
-        tmp_path / "nat",
-        "--generated",
-        tmp_path / "gen",
-        "--pairs",
-        "1",
-        "--size",
-        "48x64",
-        "--transforms",
-        "0-1",
-        "-q",
-    ]
+    opts = ["--natural", tmp_path / "nat", "--generated", tmp_path / "gen"]
+    opts += "--pairs 1 --size 48x64 --transforms 0-1 -q".split()
     for name in ("a", "b"):
         result = cli.run("gen", "--out", tmp_path / name, *opts, "--shard-size", "3" if name == "a" else "4")
         assert result.exit_code == 0, (result.stderr, result.exception)
@@ -423,20 +412,7 @@ def test_a_first_run_says_that_it_compiles_the_kernels(monkeypatch):
 
 # --- sequences ----------------------------------------------------------------------------------------
 
-SEQUENCE = [
-    "--pairs",
-    "1",
-    "--size",
-    "48x64",
-    "--seed",
-    "4",
-    "--transforms",
-    "0,125",
-    "--frames",
-    "3",
-    "--motion",
-    "gust",
-]
+SEQUENCE = "--pairs 1 --size 48x64 --seed 4 --transforms 0,125 --frames 3 --motion gust".split()
 
 
 def test_sequences_do_not_depend_on_workers_or_shard_size_and_resume_refuses_other_frames(cli, tmp_path):
