@@ -153,9 +153,10 @@ FAST_REFINE = RefineConfig(
 class RefineInfo:
     """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "sift", "none" for a
     textureless pair or "skipped"), ``images`` ("normalised", "plain" or "albedo": the gray images the
-    residual was measured on), the selection score of every candidate tried, keyed ``"HYPOTHESIS/IMAGES"``
-    (texture-weighted mean local NCC, in [-1, 1]), the per-pixel ``confidence`` (float32 ``(H, W)``
-    in [0, 1]) and ``evidence``, the share of the frame where the projected image has texture."""
+    residual was measured on; "homography": SIFT's homography unrefined), the selection score of every
+    candidate tried, keyed ``"HYPOTHESIS/IMAGES"`` (texture-weighted mean local NCC, in [-1, 1]), the
+    per-pixel ``confidence`` (float32 ``(H, W)`` in [0, 1]) and ``evidence``, the share of the frame
+    where the projected image has texture."""
 
     hypothesis: str
     images: str
@@ -276,7 +277,9 @@ class GeometricRefiner:
         """Steps 2-4 from every hypothesis on every kind of images: the refined flows and their selection
         scores, keyed ``"HYPOTHESIS/IMAGES"`` in the order tried. The albedo images start from the
         network's and SIFT's homographies only: from the identity they changed nothing on the validation
-        split and cost a fifth more time (docs/model.md, "Textured walls")."""
+        split and cost a fifth more time (docs/model.md, "Textured walls"). SIFT's homography also
+        competes unrefined (``"sift/homography"``): on a planar scene it is exact to a few hundredths of
+        a pixel, and the DIS residual would only add its own noise."""
         cfg = self.config
         normalised = images["normalised"]
         cands, scores = {}, {}
@@ -288,8 +291,10 @@ class GeometricRefiner:
                     continue
                 key = f"{name}/{kind}"
                 cands[key] = self.hypothesis(gray0, gray1, H, weight, step, textured, support, prior, albedo)[2]
-                seen = self.seen(cands[key], normalised, plain)
-                scores[key] = weighted_ncc(normalised[0], seen, cfg.ncc_sigma, evidence)
+        if "sift" in hypotheses:  # a plane: SIFT's homography as it is, which no residual refines
+            cands["sift/homography"] = homography_flow(hypotheses["sift"][0], *normalised[0].shape)
+        for key, flow in cands.items():
+            scores[key] = weighted_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma, evidence)
         return cands, scores
 
     def _predict_shrunk(

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from projreg import ProjregError
-from projreg.baselines import homography_flow
+from projreg.baselines import SiftRansac, homography_flow
 from projreg.confidence import CONFIDENT
 from projreg.frames import resize_flow, shrink
 from projreg.refine import (
@@ -214,8 +214,8 @@ def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
         name = s["params"]["transform"]["name"]
         assert _epe(flow, s) < 0.5 and _epe(flow, s) < _epe(coarse, s) / 5, (name, _epe(flow, s), _epe(coarse, s))
         tried = {f"{h}/{i}" for h in ("network", "identity", "sift") for i in ("normalised", "plain")}
-        tried |= {"network/albedo", "sift/albedo"}  # the albedo images: not from the identity
-        sift = {"sift/normalised", "sift/plain", "sift/albedo"}
+        tried |= {"network/albedo", "sift/albedo", "sift/homography"}  # albedo images: not from the identity
+        sift = {"sift/normalised", "sift/plain", "sift/albedo", "sift/homography"}
         assert tried - sift <= set(info.scores) <= tried  # SIFT: when it matches
 
 
@@ -531,6 +531,22 @@ def test_a_photographed_brick_wall_is_not_called_repeating_by_the_coarse_windows
     gray = normalize_contrast(brick, RefineConfig().contrast_sigma)
     assert repeating(gray).mean() < 0.05
     assert repeating(gray, coarse_peak=0.85).mean() > 0.2  # at the fine window's peak a third of it repeats
+
+
+def test_sift_homography_competes_unrefined_on_a_planar_pair():
+    """On a plane SIFT's homography is exact to hundredths of a pixel and the DIS residual only adds noise,
+    so the homography itself is a candidate, scored like the refined ones (and left out with ``sift_pass``)."""
+    img = render_procedural("natural", "urban", (240, 320), np.random.default_rng(0))
+    captured = cv2.warpPerspective(img, H_TRUE, (320, 240), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    truth = homography_flow(H_TRUE, 240, 320)
+    refiner = GeometricRefiner(RefineConfig())
+    pred, info = refiner.predict_info(img, captured, truth + 1.5)
+    sift = SiftRansac().predict(img, captured)
+    assert np.linalg.norm(sift - truth, axis=-1).mean() < 0.05
+    assert info.scores["sift/homography"] == pytest.approx(refiner.score(img, captured, sift), abs=1e-6)
+    assert np.linalg.norm(pred.flow - truth, axis=-1).mean() < 0.05
+    _, without = GeometricRefiner(RefineConfig(sift_pass=False)).predict_info(img, captured, truth + 1.5)
+    assert not any(key.startswith("sift/") for key in without.scores)
 
 
 def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(samples):
