@@ -88,6 +88,21 @@ def test_a_blank_pair_is_reported_on_stderr_and_left_invalid(pairs, tiny_ckpt, t
     assert header["registered"] == "no" and "textureless" in header["reason"] and header["claimed"] == "0.0000"
 
 
+def test_a_repeating_pattern_is_reported_as_such(tiny_ckpt, tmp_path):
+    """A grating matched one period off passes every check: the pair is refused, and the user is told why."""
+    y, x = np.mgrid[0:160, 0:224].astype(np.float32)
+    grating = np.repeat((128 + 90 * np.sin(2 * np.pi * (x + 0.15 * y) / 9)).astype(np.uint8)[..., None], 3, axis=2)
+    moved = cv2.remap(grating, x - 3, y - 2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    a, b = _write(tmp_path / "grating.png", grating), _write(tmp_path / "moved.png", moved)
+    out = tmp_path / "f.exr"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    (line,) = [x for x in result.stderr.splitlines() if x.strip()]
+    assert line.startswith("projreg: warning: grating.png: cannot be registered (repeating pattern: 100%"), line
+    _, valid, header = read_flow_exr(out)
+    assert not valid.any() and header["registered"] == "no" and header["reason"].startswith("repeating pattern")
+
+
 def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_path):
     img0, img1 = pairs[0]
     # pixel replication: INTER_AREA at 1/2 gives back exactly the original pair
