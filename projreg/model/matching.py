@@ -237,6 +237,14 @@ def bilinear_upsample_flow(flow: torch.Tensor, factor: int) -> torch.Tensor:
     return factor * F.interpolate(flow, scale_factor=factor, mode="bilinear", align_corners=False)
 
 
+def replicate_pad1(x: torch.Tensor) -> torch.Tensor:
+    """``[B, C, H, W]`` -> ``[B, C, H+2, W+2]``, each border row and column repeated once: ``F.pad``'s
+    replicate mode written with slices, whose backward ``torch.compile`` (torch 2.13, inductor on the CPU)
+    gets right; ``F.pad``'s own backward failed there with a stride assertion."""
+    x = torch.cat([x[:, :, :1], x, x[:, :, -1:]], dim=2)
+    return torch.cat([x[..., :1], x, x[..., -1:]], dim=3)
+
+
 def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torch.Tensor:
     """Upsample a flow as a learned convex combination of its 3x3 coarse neighbourhood (RAFT).
 
@@ -259,7 +267,7 @@ def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torc
     # transpose to put the 9 last) took 8-20 ms of a 384 x 512 pair's 236 (docs/benchmarks.md, session 10)
     logits = mask.view(b, 1, 9, f * f, h * w)
     e = torch.exp(logits - logits.amax(dim=2, keepdim=True))  # [B, 1, 9, f*f, h*w]
-    padded = F.pad(f * flow, (1, 1, 1, 1), mode="replicate")  # [B, 2, h+2, w+2]
+    padded = replicate_pad1(f * flow)  # [B, 2, h+2, w+2]
     neigh = F.unfold(padded, kernel_size=3).view(b, 2, 9, 1, h * w)  # [B, 2, 9, 1, h*w]
     up = (e * neigh).sum(dim=2) / e.sum(dim=2)  # [B, 2, f*f, h*w]
     return up.view(b, 2, f, f, h, w).permute(0, 1, 4, 2, 5, 3).reshape(b, 2, h * f, w * f)

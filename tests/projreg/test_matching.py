@@ -15,6 +15,7 @@ from projreg.model.matching import (
     global_correlation_softmax,
     local_correlation_softmax,
     local_window_scores,
+    replicate_pad1,
     window_offsets,
 )
 from projreg.model.propagation import FlowPropagation
@@ -111,6 +112,16 @@ def test_convex_upsample_of_constant_flow_is_exact_everywhere(f, h, w, u, v):
     assert up.shape == (1, 2, h * f, w * f)
     torch.testing.assert_close(up[0, 0], torch.full((h * f, w * f), f * u, dtype=torch.float64))
     torch.testing.assert_close(up[0, 1], torch.full((h * f, w * f), f * v, dtype=torch.float64))
+
+
+def test_replicate_pad1_is_f_pad_replicate_forward_and_backward():
+    x = torch.randn(2, 3, 4, 6, dtype=torch.float64, requires_grad=True)
+    ours, theirs = replicate_pad1(x), torch.nn.functional.pad(x, (1, 1, 1, 1), mode="replicate")
+    assert torch.equal(ours, theirs)
+    weights = torch.randn(theirs.shape, dtype=torch.float64)
+    (grad_ours,) = torch.autograd.grad((ours * weights).sum(), x)
+    (grad_theirs,) = torch.autograd.grad((theirs * weights).sum(), x)
+    torch.testing.assert_close(grad_ours, grad_theirs)
 
 
 def test_convex_upsample_centre_weights_repeat_each_cell():
