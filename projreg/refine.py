@@ -153,10 +153,11 @@ FAST_REFINE = RefineConfig(
 class RefineInfo:
     """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "sift", "none" for a
     textureless pair or "skipped"), ``images`` ("normalised", "plain" or "albedo": the gray images the
-    residual was measured on; "homography": SIFT's homography unrefined), the selection score of every
-    candidate tried, keyed ``"HYPOTHESIS/IMAGES"`` (texture-weighted mean local NCC, in [-1, 1]), the
-    per-pixel ``confidence`` (float32 ``(H, W)`` in [0, 1]) and ``evidence``, the share of the frame
-    where the projected image has texture."""
+    residual was measured on; "homography": a homography unrefined, SIFT's or, for a pair nothing verifies,
+    the one fitted to the network's flow), the selection score of every candidate tried, keyed
+    ``"HYPOTHESIS/IMAGES"`` (texture-weighted mean local NCC, in [-1, 1]), the per-pixel ``confidence``
+    (float32 ``(H, W)`` in [0, 1]) and ``evidence``, the share of the frame where the projected image has
+    texture."""
 
     hypothesis: str
     images: str
@@ -257,8 +258,16 @@ class GeometricRefiner:
             best = max(net, key=lambda k: scores[k])
             conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
         claimed = conf >= CONFIDENT
-        name, kind = best.split("/")
         why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeats, textured)
+        if why and hypotheses["network"][0] is not None:
+            # nothing verified: the residuals fitted on images that carry no evidence only add noise, and the
+            # homography of the network's own flow is the smoothest statement of its hypothesis (docs/model.md)
+            best = "network/homography"
+            cands[best] = homography_flow(hypotheses["network"][0], h, w)
+            scores[best] = weighted_ncc(
+                normalised[0], self.seen(cands[best], normalised, plain), cfg.ncc_sigma, evidence
+            )
+        name, kind = best.split("/")
         # a pair reported as not registered claims nothing: a few stray pixels passing the checks are not
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(cands[best], claimed if not why else np.zeros_like(claimed), not why, why)

@@ -414,6 +414,11 @@ def test_a_pair_reported_not_registered_claims_no_pixel(picture):
     pred, info = GeometricRefiner(RefineConfig(min_evidence=0.6)).predict_info(img0, img1, net)
     assert info.evidence > 0.6 and not pred.registered and pred.reason.startswith("no region verified")
     assert not pred.claimed.any() and (info.confidence >= CONFIDENT).mean() > 0.1
+    # its flow: the homography of the network's own flow, no residual fitted on unverified images
+    assert (info.hypothesis, info.images) == ("network", "homography")
+    H = fit_homography(pred.flow, 4, 0.5, None, np.inf, 0.0)[0]
+    np.testing.assert_allclose(homography_flow(H, *valid.shape), pred.flow, atol=1e-3)
+    assert info.scores["network/homography"] == pytest.approx(GeometricRefiner().score(img0, img1, pred.flow), abs=1e-6)
 
 
 def test_a_short_period_bend_is_followed_by_the_detail_level(picture):
