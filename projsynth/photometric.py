@@ -24,6 +24,18 @@ import numpy as np
 from .jit import jit
 
 BLENDS = ("paper", "physical")
+# The paper blend's parameters that leave the projected image as it is (full contrast, no background,
+# no gamma, no noise): a render of geometry alone, as the render and compensation tests use it
+PAPER_IDENTITY = {
+    "contrast": 1.0,
+    "brightness": 0.0,
+    "beta": 1.0,
+    "alpha": 1.0,
+    "alpha_var": 0.0,
+    "gamma": 0.0,
+    "noise_mu": 0.0,
+    "noise_sigma": 0.0,
+}
 
 
 def composite(

@@ -5,22 +5,13 @@ from typer.testing import CliRunner
 from projreg.cli import app
 from projreg.compensate import compensate
 from projsynth.flowio import write_flow_exr
+from projsynth.photometric import PAPER_IDENTITY
 from projsynth.render import render
 from projsynth.rig import make_scene
 from projsynth.scene import backward, pixel_grid
 from projsynth.transforms import builtin_table
 
 H, W = 96, 128
-IDENTITY = {
-    "contrast": 1.0,
-    "brightness": 0.0,
-    "beta": 1.0,
-    "alpha": 1.0,
-    "alpha_var": 0.0,
-    "gamma": 0.0,
-    "noise_mu": 0.0,
-    "noise_sigma": 0.0,
-}
 
 
 def _texture(seed):
@@ -33,9 +24,9 @@ def test_projecting_the_prewarped_image_shows_the_content():
     cfg = next(c for c in builtin_table().configs if c.family == "sphere_convex" and c.severity == 3)
     scene, _ = make_scene(cfg.family, cfg.geometry, np.random.default_rng(4), (H, W))
     content = _texture(1)
-    gt = render(content, np.zeros_like(content), scene, IDENTITY, "paper", np.random.default_rng(0))
+    gt = render(content, np.zeros_like(content), scene, PAPER_IDENTITY, "paper", np.random.default_rng(0))
     prewarped = compensate(content, gt.flow, gt.valid)
-    seen = render(prewarped, np.zeros_like(content), scene, IDENTITY, "paper", np.random.default_rng(0)).captured
+    seen = render(prewarped, np.zeros_like(content), scene, PAPER_IDENTITY, "paper", np.random.default_rng(0)).captured
     naive = gt.captured  # projecting the content itself
     # camera pixels lit from well inside the valid projector region
     xy, lit = backward(scene, pixel_grid(H, W))
@@ -48,6 +39,13 @@ def test_projecting_the_prewarped_image_shows_the_content():
     assert err < 4.0 and err < 0.2 * err_naive, (err, err_naive)
 
 
+def compensate_cli(content, out):
+    """``projreg compensate`` of ``content`` through the test's flow (``f.exr`` beside it) into ``out``."""
+    return CliRunner().invoke(
+        app, ["compensate", "--content", str(content), "--flow", str(content.parent / "f.exr"), "--out", str(out)]
+    )
+
+
 def test_cli_writes_the_projector_image(tmp_path):
     flow = np.zeros((H, W, 2), np.float32)
     flow[..., 0] = 2.0
@@ -56,18 +54,7 @@ def test_cli_writes_the_projector_image(tmp_path):
     write_flow_exr(tmp_path / "f.exr", flow, valid, "x")
     content = _texture(2)
     cv2.imwrite(str(tmp_path / "c.png"), cv2.cvtColor(content, cv2.COLOR_RGB2BGR))
-    result = CliRunner().invoke(
-        app,
-        [
-            "compensate",
-            "--content",
-            str(tmp_path / "c.png"),
-            "--flow",
-            str(tmp_path / "f.exr"),
-            "--out",
-            str(tmp_path / "p.png"),
-        ],
-    )
+    result = compensate_cli(tmp_path / "c.png", tmp_path / "p.png")
     assert result.exit_code == 0, result.stderr
     lit = f"{(W - 2) / W:.1%}"  # the one-line summary on success
     assert (
@@ -77,30 +64,8 @@ def test_cli_writes_the_projector_image(tmp_path):
     out = cv2.cvtColor(cv2.imread(str(tmp_path / "p.png")), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(out[:, :-2], content[:, 2:])  # p shows content at p + (2, 0)
     assert (out[:, -2:] == 0).all()
-    bad = CliRunner().invoke(
-        app,
-        [
-            "compensate",
-            "--content",
-            str(tmp_path / "nope.png"),
-            "--flow",
-            str(tmp_path / "f.exr"),
-            "--out",
-            str(tmp_path / "p.png"),
-        ],
-    )
+    bad = compensate_cli(tmp_path / "nope.png", tmp_path / "p.png")
     assert bad.exit_code == 2 and "nope.png" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
-    jpg = CliRunner().invoke(
-        app,
-        [
-            "compensate",
-            "--content",
-            str(tmp_path / "c.png"),
-            "--flow",
-            str(tmp_path / "f.exr"),
-            "--out",
-            str(tmp_path / "p.jpg"),
-        ],
-    )
+    jpg = compensate_cli(tmp_path / "c.png", tmp_path / "p.jpg")
     assert jpg.exit_code == 2 and "--out" in jpg.stderr and "ending in .png" in jpg.stderr
     assert not (tmp_path / "p.jpg").exists()

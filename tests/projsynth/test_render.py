@@ -1,23 +1,13 @@
 import numpy as np
 import pytest
 
-from projsynth.photometric import sample_bilinear
+from projsynth.photometric import PAPER_IDENTITY, sample_bilinear
 from projsynth.render import render
 from projsynth.rig import make_scene
 from projsynth.scene import backward, pixel_grid
 from projsynth.transforms import FAMILIES, builtin_table, draw
 
 H, W = 96, 128
-IDENTITY = {
-    "contrast": 1.0,
-    "brightness": 0.0,
-    "beta": 1.0,
-    "alpha": 1.0,
-    "alpha_var": 0.0,
-    "gamma": 0.0,
-    "noise_mu": 0.0,
-    "noise_sigma": 0.0,
-}
 
 
 def _scene(family, seed=0, severity=3):
@@ -39,7 +29,7 @@ def test_captured_is_projected_sampled_at_exact_backward_positions(family):
     ys, xs = np.mgrid[0:H, 0:W]
     coded = np.dstack([xs, ys, np.zeros_like(xs)]).astype(np.uint8)
     scene = _scene(family)
-    out = render(coded, np.zeros_like(coded), scene, IDENTITY, "paper", np.random.default_rng(0))
+    out = render(coded, np.zeros_like(coded), scene, PAPER_IDENTITY, "paper", np.random.default_rng(0))
     xy, lit = backward(scene, pixel_grid(H, W))
     lit = lit.reshape(H, W)
     got = out.captured[lit].astype(float)
@@ -64,7 +54,7 @@ def test_flow_aligns_better_than_any_half_or_one_pixel_shift(family):
         / 3
     )
     proj = np.clip(tex, 0, 255).astype(np.uint8)
-    out = render(proj, np.full_like(proj, 90), _scene(family, 1), IDENTITY, "paper", rng)
+    out = render(proj, np.full_like(proj, 90), _scene(family, 1), PAPER_IDENTITY, "paper", rng)
     yv, xv = np.nonzero(out.valid)
     rgba = np.dstack([out.captured, out.captured[..., :1]])
 
@@ -131,7 +121,7 @@ def test_valid_pixels_keep_a_margin_from_occlusion_and_silhouettes():
         np.full((H, W, 3), 128, np.uint8),
         np.zeros((H, W, 3), np.uint8),
         scene,
-        IDENTITY,
+        PAPER_IDENTITY,
         "paper",
         np.random.default_rng(0),
     )
