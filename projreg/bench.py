@@ -350,26 +350,13 @@ def run_bench(
         result per method (see docs/projreg-cli.md).
     """
     data = Path(data)
-    if refine not in REFINE_MODES:
-        raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
-    if batch_size < 1:
-        raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
-    if track and batch_size > 1:
-        raise ProjregError("--track registers frame after frame; drop --batch-size")
+    _check_options(refine, batch_size, track, compensation, photometric)
     try:
         reader = ShardReader(data)
     except ProjsynthError as e:
         raise ProjregError(f"--data {data}: {e}") from e
     try:
-        frames = reader.manifest.get("frames", 1)
-        if track and frames < 2:
-            raise ProjregError(f"--track: {data} holds single frames; make sequences with `projsynth gen --frames N`")
-        if track:
-            indices = [s * frames + f for s in sample_indices(len(reader) // frames, limit) for f in range(frames)]
-        else:
-            indices = sample_indices(len(reader), limit)
-        if not indices:
-            raise ProjregError(f"--data {data}: the dataset has no samples")
+        indices = _bench_indices(reader, data, track, limit)
         run = ModelRun(refine, device, precision, backend, fast, track, batch_size)
         methods, reference = resolve_methods(models, baselines, run, equalize)
         methods += list(extra_methods)
@@ -379,14 +366,9 @@ def run_bench(
         if len(set(names)) < len(names):
             raise ProjregError(f"method names must be unique, got {', '.join(names)}")
         scores = [_Scores(track) for _ in methods]
-        if photometric and not compensation:
-            raise ProjregError("--photometric needs --compensation (it scores the camera's view of a compensation)")
         loop, uncompensated = (ClosedLoop(data, photometric), _Scores()) if compensation else (None, None)
         first = _read(reader, indices[0])
-        for m in methods:  # warm-up: lazy initialisation, allocator, CUDA kernels
-            register_any_size(m.predict, first["projected"], first["captured"])
-            if m.tracker is not None:
-                m.tracker.counts = dict.fromkeys(m.tracker.counts, 0)
+        _warm_up(methods, first)
         if progress:
             progress(0, len(indices))  # the bar from here: the inputs are good
         chunk: dict[int, dict] = {}
@@ -396,22 +378,7 @@ def run_bench(
                 chunk = {done + j: first if done + j == 1 else _read(reader, kj) for j, kj in enumerate(ks)}
                 shares = _prefetch(methods, list(chunk.values()))
             s = chunk[done]
-            groups = sample_groups(s["params"])
-            sid = str(s["params"].get("sample_id", k))
-            if track and s["params"].get("frame", 0) == 0:  # a sequence starts: the trackers forget
-                for m in methods:
-                    if m.tracker is not None:
-                        m.tracker.reset()
-            flows = {}
-            for m, sc in zip(methods, scores, strict=True):
-                t0 = time.perf_counter()
-                pred = as_prediction(register_any_size(m.predict, s["projected"], s["captured"]))
-                sc.ms.append(1000 * (time.perf_counter() - t0) + shares.get(m.name, 0.0))
-                sc.add(pred, s["flow"], s["valid"], groups, sid, str(s["params"].get("sequence", "")))
-                # the compensation honours what a method claims: unclaimed pixels get no content
-                flows[m.name] = (
-                    pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow, np.nan)
-                )
+            flows = _score_sample(methods, scores, s, k, shares, track)
             if loop is not None:
                 comp = loop.score(k, s, flows)
                 uncompensated.comp.append(comp.pop(UNCOMPENSATED))
@@ -425,26 +392,83 @@ def run_bench(
                 progress(done, len(indices))
     finally:
         reader.close()
-    man = reader.manifest
-    dataset = {
-        "path": str(data),
-        "num_samples": len(reader),
-        "evaluated": len(indices),
-        "size": man.get("size"),
-        "camera_size": man.get("camera_size", man.get("size")),
-        "seed": man.get("seed"),
-        "split": man.get("split"),
-        "config_hash": man.get("config_hash"),
-    }
     results = [sc.result(m) for m, sc in zip(methods, scores, strict=True)]
     if uncompensated is not None:
         row = uncompensated.result(Method(UNCOMPENSATED, "none", lambda a, b: a))
         results.append({**row, **{k: None for k in KEYS if k not in ("pixels", "images")}, "ms_per_pair": None})
     return {
-        "dataset": dataset,
+        "dataset": _dataset_info(reader, data, len(indices)),
         "reference_model": None if reference is None else str(reference),
         "results": results,
         "versus_baselines": versus_baselines(results),
+    }
+
+
+def _check_options(refine: str, batch_size: int, track: bool, compensation: bool, photometric: bool) -> None:
+    if refine not in REFINE_MODES:
+        raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
+    if batch_size < 1:
+        raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
+    if track and batch_size > 1:
+        raise ProjregError("--track registers frame after frame; drop --batch-size")
+    if photometric and not compensation:
+        raise ProjregError("--photometric needs --compensation (it scores the camera's view of a compensation)")
+
+
+def _bench_indices(reader: ShardReader, data: Path, track: bool, limit: int | None) -> list[int]:
+    """The samples to evaluate: ``limit`` spread evenly (with ``track``, ``limit`` whole sequences)."""
+    frames = reader.manifest.get("frames", 1)
+    if track and frames < 2:
+        raise ProjregError(f"--track: {data} holds single frames; make sequences with `projsynth gen --frames N`")
+    if track:
+        indices = [s * frames + f for s in sample_indices(len(reader) // frames, limit) for f in range(frames)]
+    else:
+        indices = sample_indices(len(reader), limit)
+    if not indices:
+        raise ProjregError(f"--data {data}: the dataset has no samples")
+    return indices
+
+
+def _warm_up(methods: list[Method], sample: dict) -> None:
+    """One pair through every method before timing: lazy initialisation, allocator, CUDA kernels."""
+    for m in methods:
+        register_any_size(m.predict, sample["projected"], sample["captured"])
+        if m.tracker is not None:
+            m.tracker.counts = dict.fromkeys(m.tracker.counts, 0)
+
+
+def _score_sample(
+    methods: list[Method], scores: list[_Scores], s: dict, k: int, shares: dict[str, float], track: bool
+) -> dict[str, np.ndarray]:
+    """Every method's flow for sample ``s`` (index ``k``), timed and scored; the flows with the pixels a
+    method does not claim set to NaN (the compensation honours what a method claims)."""
+    groups = sample_groups(s["params"])
+    sid = str(s["params"].get("sample_id", k))
+    if track and s["params"].get("frame", 0) == 0:  # a sequence starts: the trackers forget
+        for m in methods:
+            if m.tracker is not None:
+                m.tracker.reset()
+    flows = {}
+    for m, sc in zip(methods, scores, strict=True):
+        t0 = time.perf_counter()
+        pred = as_prediction(register_any_size(m.predict, s["projected"], s["captured"]))
+        sc.ms.append(1000 * (time.perf_counter() - t0) + shares.get(m.name, 0.0))
+        sc.add(pred, s["flow"], s["valid"], groups, sid, str(s["params"].get("sequence", "")))
+        flows[m.name] = pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow, np.nan)
+    return flows
+
+
+def _dataset_info(reader: ShardReader, data: Path, evaluated: int) -> dict:
+    man = reader.manifest
+    return {
+        "path": str(data),
+        "num_samples": len(reader),
+        "evaluated": evaluated,
+        "size": man.get("size"),
+        "camera_size": man.get("camera_size", man.get("size")),
+        "seed": man.get("seed"),
+        "split": man.get("split"),
+        "config_hash": man.get("config_hash"),
     }
 
 

@@ -198,6 +198,121 @@ def train(
         return _train(cfg, resume, progress, val_progress, stop)
 
 
+_RESUME_MUST_MATCH = (
+    ("model", "--model"),
+    ("use_ssjm", "--no-ssjm"),
+    ("schedule_steps", "--schedule-steps"),
+    ("warmup_steps", "--warmup-steps"),
+    ("lr", "--lr"),
+    ("batch_size", "--batch-size"),
+    ("seed", "--seed"),
+    ("data", "--data"),
+    ("crop", "--crop"),
+    ("gamma", "gamma"),
+    ("weight_decay", "weight decay"),
+    ("grad_clip", "gradient clipping"),
+    ("amp", "--amp"),
+    ("init", "--init"),
+)
+
+
+@dataclass(frozen=True)
+class _Process:
+    """Where this process runs: its rank among ``world`` (0 of 1 without torchrun) and its device."""
+
+    rank: int
+    world: int
+    distributed: bool
+    device: torch.device
+
+
+class _Run:
+    """What a checkpoint holds: the model, its optimizer and schedule, the step and the best validation
+    EPE; ``save`` writes it (never with non-finite weights), ``restore`` continues it exactly."""
+
+    def __init__(self, cfg: TrainConfig, device: torch.device) -> None:
+        self.cfg = cfg  # seeded before the model is built: the initial weights follow --seed
+        torch.manual_seed(cfg.seed)
+        np.random.seed(cfg.seed)
+        random.seed(cfg.seed)
+        self.model = build_model(cfg.model, use_ssjm=cfg.use_ssjm).to(device)
+        self.model.transformer.checkpointing = cfg.activation_checkpointing
+        self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.sched = _schedule(self.opt, cfg)
+        self.step, self.best = 0, float("inf")
+        self.last_path = Path(cfg.out) / "checkpoints" / "last.pt"
+
+    def restore(self) -> None:
+        """Continue ``last.pt``: weights, optimizer, schedule, RNG states, step and best EPE."""
+        path, cfg = self.last_path, self.cfg
+        ck = load_checkpoint(path)
+        missing = [k for k in _RESUME_KEYS if not isinstance(ck, dict) or k not in ck]
+        if missing:
+            raise ProjregError(
+                f"--resume: {path} lacks {', '.join(missing)} (an exported checkpoint?); "
+                "resume needs the last.pt that `projreg train` wrote"
+            )
+        old = ck["train_config"]
+        for key, option in _RESUME_MUST_MATCH:
+            if _plain(old.get(key), key) != _plain(getattr(cfg, key), key):
+                raise ProjregError(
+                    f"--resume: {path} was trained with {option} {old.get(key)}, not "
+                    f"{getattr(cfg, key)}; resume with the same value"
+                )
+        if int(ck["step"]) > cfg.steps:
+            raise ProjregError(f"--resume: {path} is already at step {ck['step']} > --steps {cfg.steps}")
+        self.model.load_state_dict(ck["model"])
+        self.opt.load_state_dict(ck["optimizer"])
+        self.sched.load_state_dict(ck["scheduler"])
+        _set_rng_state(ck["rng"])
+        self.step, self.best = int(ck["step"]), float(ck["best_epe"])
+
+    def save(self, path: Path) -> None:
+        bad = _non_finite(self.model, self.opt)
+        if bad is not None:
+            raise ProjregError(
+                f"non-finite {bad} after step {self.step} (--lr too high?); stopped without writing "
+                f"{path.name}, {_last_good(self.last_path)}"
+            )
+        state = {
+            "model": self.model.state_dict(),
+            "model_config": self.model.config,
+            "optimizer": self.opt.state_dict(),
+            "scheduler": self.sched.state_dict(),
+            "rng": _rng_state(),
+            "step": self.step,
+            "best_epe": self.best,
+            "train_config": asdict(self.cfg),
+            "version": __version__,
+        }
+        atomic_save(state, path)
+
+
+def _batches(train_ds: ShardDataset, cfg: TrainConfig, step: int, rank: int, world: int, device: torch.device):
+    """The sample stream from ``step`` on (this rank's slice of it); the first batch is read at once, so
+    that a bad one leaves ``--out`` untouched."""
+    sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
+    loader = DataLoader(
+        train_ds,
+        batch_size=cfg.batch_size,
+        sampler=sampler,
+        num_workers=cfg.workers,
+        pin_memory=device.type == "cuda",
+        drop_last=True,
+        worker_init_fn=_ignore_interrupts,
+    )
+    batches = iter(loader)
+    return itertools.chain([_next_batch(batches)], batches)
+
+
+def _make_out(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) -> None:
+    try:
+        (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ProjregError(f"--out {out}: cannot create ({e.strerror})") from e
+    _write_config(out, cfg, model, resume)
+
+
 def _train(
     cfg: TrainConfig,
     resume: bool,
@@ -217,113 +332,57 @@ def _train(
     if cfg.batch_size > len(train_ds):  # the stream would repeat samples within one batch, without bound
         raise ProjregError(f"--batch-size {cfg.batch_size} exceeds the {len(train_ds)} samples of --data; lower it")
     out = Path(cfg.out)
-    ckpt_dir = out / "checkpoints"
-    last_path = ckpt_dir / "last.pt"
-    if rank == 0 and not resume and last_path.exists():
+    run = _Run(cfg, device)
+    if rank == 0 and not resume and run.last_path.exists():
         raise ProjregError(f"--out {out}: already holds a run; add --resume to continue it or pick a new --out")
-    if resume and not last_path.exists():
-        raise ProjregError(f"--resume: {last_path} does not exist; start without --resume")
-
-    torch.manual_seed(cfg.seed)
-    np.random.seed(cfg.seed)
-    random.seed(cfg.seed)
-    model = build_model(cfg.model, use_ssjm=cfg.use_ssjm).to(device)
-    model.transformer.checkpointing = cfg.activation_checkpointing
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = _schedule(opt, cfg)
-    step, best = 0, float("inf")
-    if cfg.init is not None and not resume:  # on resume the weights come from last.pt
-        model.load_state_dict(initial_weights(cfg.init, model))
+    if resume and not run.last_path.exists():
+        raise ProjregError(f"--resume: {run.last_path} does not exist; start without --resume")
     if resume:
-        ck = load_checkpoint(last_path)
-        missing = [k for k in _RESUME_KEYS if not isinstance(ck, dict) or k not in ck]
-        if missing:
-            raise ProjregError(
-                f"--resume: {last_path} lacks {', '.join(missing)} (an exported checkpoint?); "
-                "resume needs the last.pt that `projreg train` wrote"
-            )
-        old = ck["train_config"]
-        for key, option in (
-            ("model", "--model"),
-            ("use_ssjm", "--no-ssjm"),
-            ("schedule_steps", "--schedule-steps"),
-            ("warmup_steps", "--warmup-steps"),
-            ("lr", "--lr"),
-            ("batch_size", "--batch-size"),
-            ("seed", "--seed"),
-            ("data", "--data"),
-            ("crop", "--crop"),
-            ("gamma", "gamma"),
-            ("weight_decay", "weight decay"),
-            ("grad_clip", "gradient clipping"),
-            ("amp", "--amp"),
-            ("init", "--init"),
-        ):
-            if _plain(old.get(key), key) != _plain(getattr(cfg, key), key):
-                raise ProjregError(
-                    f"--resume: {last_path} was trained with {option} {old.get(key)}, not "
-                    f"{getattr(cfg, key)}; resume with the same value"
-                )
-        if int(ck["step"]) > cfg.steps:
-            raise ProjregError(f"--resume: {last_path} is already at step {ck['step']} > --steps {cfg.steps}")
-        model.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
-        sched.load_state_dict(ck["scheduler"])
-        _set_rng_state(ck["rng"])
-        step, best = int(ck["step"]), float(ck["best_epe"])
-    sampler = StreamSampler(len(train_ds), cfg.seed, start=step * cfg.batch_size, rank=rank, world=world)
-    loader = DataLoader(
-        train_ds,
-        batch_size=cfg.batch_size,
-        sampler=sampler,
-        num_workers=cfg.workers,
-        pin_memory=device.type == "cuda",
-        drop_last=True,
-        worker_init_fn=_ignore_interrupts,
-    )
-    batches = iter(loader)
-    batches = itertools.chain([_next_batch(batches)], batches)  # a bad first batch leaves --out untouched
+        run.restore()
+    elif cfg.init is not None:  # on resume the weights come from last.pt
+        run.model.load_state_dict(initial_weights(cfg.init, run.model))
+    batches = _batches(train_ds, cfg, run.step, rank, world, device)
     if rank == 0:
-        try:
-            ckpt_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise ProjregError(f"--out {out}: cannot create ({e.strerror})") from e
-        _write_config(out, cfg, model, resume)
-    log = _Log(out / "metrics.csv", step if resume else None, rank == 0)
-    net = model
+        _make_out(out, cfg, run.model, resume)
+    log = _Log(out / "metrics.csv", run.step if resume else None, rank == 0)
+    net = run.model
     if distributed:
         ids = [device.index] if device.type == "cuda" else None  # one GPU per process
-        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=ids)
+        net = torch.nn.parallel.DistributedDataParallel(run.model, device_ids=ids)
     if cfg.compile:
         net = torch.compile(net)
+    start = run.step
+    proc = _Process(rank, world, distributed, device)
+    last_loss = _loop(run, net, batches, val_ds, log, stop, proc, progress, val_progress)
+    if stop.signal is not None and rank == 0:
+        run.save(run.last_path)  # the state after the last finished step: --resume continues from it
+    summary = {
+        "step": run.step,
+        "loss": None if run.step == start else last_loss,
+        "best_epe": None if math.isinf(run.best) else run.best,
+        "steps_run": run.step - start,
+        "interrupted": stop.signal,
+        "checkpoint": str(run.last_path),
+    }
+    if distributed:
+        _record_ddp_agreement(run.model, out, rank, world, device)
+        dist.destroy_process_group()
+    return summary
+
+
+def _loop(
+    run: _Run, net, batches, val_ds, log: _Log, stop: _StopSignal, proc: _Process, progress, val_progress
+) -> float:
+    """Optimiser steps until ``cfg.steps`` or a stop signal; the loss of the last logged step.
+
+    The host reads the device once per log, validation or checkpoint step, not every step."""
+    cfg, model, opt, sched = run.cfg, run.model, run.opt, run.sched
+    rank, world, distributed, device = proc.rank, proc.world, proc.distributed, proc.device
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=cfg.amp and device.type == "cuda")
-
-    def checkpoint(path: Path) -> None:
-        bad = _non_finite(model, opt)
-        if bad is not None:
-            raise ProjregError(
-                f"non-finite {bad} after step {step} (--lr too high?); stopped without writing "
-                f"{path.name}, {_last_good(last_path)}"
-            )
-        atomic_save(
-            {
-                "model": model.state_dict(),
-                "model_config": model.config,
-                "optimizer": opt.state_dict(),
-                "scheduler": sched.state_dict(),
-                "rng": _rng_state(),
-                "step": step,
-                "best_epe": best,
-                "train_config": asdict(cfg),
-                "version": __version__,
-            },
-            path,
-        )
-
-    t0, seen, last_loss, start = time.perf_counter(), 0, float("nan"), step
+    t0, seen, last_loss = time.perf_counter(), 0, float("nan")
     stats = _Interval(device)  # device-side sums: the host waits for the GPU once per log interval
     model.train()
-    while step < cfg.steps and not stop.agreed(step, distributed, cfg.log_every, device):
+    while run.step < cfg.steps and not stop.agreed(run.step, distributed, cfg.log_every, device):
         batch = _next_batch_unless_stopped(batches, stop)
         if batch is None:
             break
@@ -336,48 +395,38 @@ def _train(
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
         sched.step()
-        step += 1
+        run.step += 1
+        step = run.step
         seen += cfg.batch_size * world
         stats.add(step, loss.detach(), metrics)
         logging = step % cfg.log_every == 0 or step == cfg.steps
         validating = val_ds is not None and rank == 0 and (step % cfg.val_every == 0 or step == cfg.steps)
-        if not (logging or validating or step % cfg.ckpt_every == 0):
-            if progress:
-                progress(step, last_loss)
-            continue
-        row = stats.flush(reset=logging)  # the one host sync of the interval
-        bad_step = row.pop("bad_step")
-        if bad_step:
-            raise ProjregError(f"non-finite loss at step {bad_step}; stopped, {_last_good(last_path)}")
-        last_loss = row["loss"]
-        if logging:
-            rate = seen / (time.perf_counter() - t0)
-            log.write({"step": step, "kind": "train", **row, "lr": sched.get_last_lr()[0], "samples_per_s": rate})
-        if validating:
-            res = evaluate(model, val_ds, device=device, limit=cfg.val_samples, progress=val_progress)
-            model.train()
-            log.write({"step": step, "kind": "val", **{k: res[k] for k in CSV_FIELDS if k in res}})
-            if res["epe"] is not None and res["epe"] < best:
-                best = res["epe"]
-                checkpoint(ckpt_dir / "best.pt")
-        if rank == 0 and (step % cfg.ckpt_every == 0 or step == cfg.steps):
-            checkpoint(last_path)
+        if logging or validating or step % cfg.ckpt_every == 0:
+            row = stats.flush(reset=logging)  # the one host sync of the interval
+            bad_step = row.pop("bad_step")
+            if bad_step:
+                raise ProjregError(f"non-finite loss at step {bad_step}; stopped, {_last_good(run.last_path)}")
+            last_loss = row["loss"]
+            if logging:
+                rate = seen / (time.perf_counter() - t0)
+                log.write({"step": step, "kind": "train", **row, "lr": sched.get_last_lr()[0], "samples_per_s": rate})
+            if validating:
+                _validate(run, val_ds, log, device, val_progress)
+            if rank == 0 and (step % cfg.ckpt_every == 0 or step == cfg.steps):
+                run.save(run.last_path)
         if progress:
             progress(step, last_loss)
-    if stop.signal is not None and rank == 0:
-        checkpoint(last_path)  # the state after the last finished step: --resume continues from it
-    summary = {
-        "step": step,
-        "loss": None if step == start else last_loss,
-        "best_epe": None if math.isinf(best) else best,
-        "steps_run": step - start,
-        "interrupted": stop.signal,
-        "checkpoint": str(last_path),
-    }
-    if distributed:
-        _record_ddp_agreement(model, out, rank, world, device)
-        dist.destroy_process_group()
-    return summary
+    return last_loss
+
+
+def _validate(run: _Run, val_ds: ShardDataset, log: _Log, device: torch.device, val_progress) -> None:
+    """Validation EPE on ``cfg.val_samples`` samples, logged; ``best.pt`` when it is the lowest yet."""
+    res = evaluate(run.model, val_ds, device=device, limit=run.cfg.val_samples, progress=val_progress)
+    run.model.train()
+    log.write({"step": run.step, "kind": "val", **{k: res[k] for k in CSV_FIELDS if k in res}})
+    if res["epe"] is not None and res["epe"] < run.best:
+        run.best = res["epe"]
+        run.save(Path(run.cfg.out) / "checkpoints" / "best.pt")
 
 
 class _StopSignal:
