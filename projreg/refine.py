@@ -233,19 +233,7 @@ class GeometricRefiner:
         step = fit_step(h, w, cfg.fit_points)
         textured = evidence >= 0.5
         support = near(textured, cfg.support_margin * max(h, w))
-        # the network's own flow is fitted everywhere: it carries the network's hypothesis into flat
-        # regions too, and the refit below keeps to the textured pixels
-        start = fit_homography(flow, step, cfg.ransac_px, None, math.inf, cfg.min_hull)
-        fit = start if start is not None and area_ratio(start[0], h, w) <= cfg.max_area_ratio else None
-        # the network's start is never dropped: a homography too bent to trust as an answer (strong lens
-        # distortion) still starts a refinement that verifies what it finds; an affine fit when none is found
-        start = start or fit_affine(flow, step, cfg.ransac_px, cfg.min_hull)
-        hypotheses = {"network": (None if start is None else start[0], flow)}
-        hypotheses["identity"] = (np.eye(3), np.zeros_like(flow))
-        if not (identity and cfg.identity_pass) and fit is not None:
-            del hypotheses["identity"]
-        if identity and self._sift is not None:
-            hypotheses.update(self._sift_hypothesis(projected, captured, step))
+        hypotheses = self._hypotheses(projected, captured, flow, step, identity)
         cands, scores = self._candidates(images, hypotheses, plain, evidence, step, textured, support)
         best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
         # a repeating pattern: a flow off by one period passes every check (computed once per pair)
@@ -272,6 +260,26 @@ class GeometricRefiner:
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(cands[best], claimed if not why else np.zeros_like(claimed), not why, why)
         return pred, RefineInfo(name, kind, scores, conf, share)
+
+    def _hypotheses(
+        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, step: int, identity: bool
+    ) -> dict[str, tuple[np.ndarray | None, np.ndarray]]:
+        """The starts of the refinement, by name: ``(homography or None, flow)`` for the network's flow,
+        the identity and SIFT's homography (``identity``, and the config's passes, decide the last two)."""
+        cfg, (h, w) = self.config, flow.shape[:2]
+        # the network's own flow is fitted everywhere: it carries the network's hypothesis into flat
+        # regions too, and the refit in the candidates keeps to the textured pixels
+        start = fit_homography(flow, step, cfg.ransac_px, None, math.inf, cfg.min_hull)
+        fit = start if start is not None and area_ratio(start[0], h, w) <= cfg.max_area_ratio else None
+        # the network's start is never dropped: a homography too bent to trust as an answer (strong lens
+        # distortion) still starts a refinement that verifies what it finds; an affine fit when none is found
+        start = start or fit_affine(flow, step, cfg.ransac_px, cfg.min_hull)
+        hypotheses = {"network": (None if start is None else start[0], flow)}
+        if (identity and cfg.identity_pass) or fit is None:
+            hypotheses["identity"] = (np.eye(3), np.zeros_like(flow))
+        if identity and self._sift is not None:
+            hypotheses.update(self._sift_hypothesis(projected, captured, step))
+        return hypotheses
 
     def _candidates(
         self,
