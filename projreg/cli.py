@@ -83,6 +83,13 @@ def train(
     warmup_steps: Annotated[int, typer.Option(help="Linear warm-up steps of the schedule.")] = 100,
     batch_size: Annotated[int, typer.Option(help="Samples per step (per process under torchrun).", metavar="B")] = 8,
     lr: Annotated[float, typer.Option(help="Peak learning rate of the OneCycle schedule.")] = 4e-4,
+    gamma: Annotated[
+        float,
+        typer.Option(
+            help="Loss weight decay over the predictions, coarse to fine: gamma^(N-1-i) for the i-th of N "
+            "(1: the 1/8 predictions weigh as much as the last)."
+        ),
+    ] = 0.9,
     seed: Annotated[int, typer.Option(help="Seed of initialisation, sample order and augmentation.", metavar="S")] = 0,
     crop: Annotated[
         str, typer.Option(help="Training crop HxW, or none for full frames.", metavar="HxW|none")
@@ -135,6 +142,7 @@ def train(
             warmup_steps=warmup_steps,
             batch_size=batch_size,
             lr=lr,
+            gamma=gamma,
             seed=seed,
             workers=workers,
             crop=_parse_crop(crop),

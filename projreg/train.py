@@ -208,7 +208,7 @@ _RESUME_MUST_MATCH = (
     ("seed", "--seed"),
     ("data", "--data"),
     ("crop", "--crop"),
-    ("gamma", "gamma"),
+    ("gamma", "--gamma"),
     ("weight_decay", "weight decay"),
     ("grad_clip", "gradient clipping"),
     ("amp", "--amp"),

@@ -20,6 +20,8 @@ FAST = ["--steps", "1", "--batch-size", "2", "--crop", "none", "--workers", "0",
         ("--seed", str(2**64), "--seed must be in 0..4294967295"),
         ("--lr", "inf", "--lr must be finite"),
         ("--lr", "nan", "--lr must be finite"),
+        ("--gamma", "0", "--gamma must be in (0, 1]"),
+        ("--gamma", "1.5", "--gamma must be in (0, 1]"),
         ("--batch-size", "100000", "--batch-size 100000 exceeds the 32 samples of --data"),
     ],
 )

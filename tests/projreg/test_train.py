@@ -340,6 +340,21 @@ def test_init_through_the_cli_as_a_user_fine_tunes(tiny_train, tiny_ckpt, tmp_pa
     assert not other.exists()
 
 
+def test_gamma_through_the_cli_weighs_the_coarse_predictions(tiny_train, tmp_path):
+    """--gamma reaches the loss: from the same weights and batch, the first step's loss is larger when the
+    coarse predictions weigh as much as the last (every term is positive), and the run records it."""
+    args = ["train", "--data", tiny_train, *"--steps 1 --batch-size 1 --workers 0 --crop none --seed 5 -q".split()]
+    losses = {}
+    for gamma in ("1", "0.5"):
+        run = tmp_path / f"g{gamma}"
+        result = CliRunner().invoke(app, [str(a) for a in [*args, "--gamma", gamma, "--out", run]])
+        assert result.exit_code == 0, (result.stderr, result.exception)
+        assert json.loads((run / "config.json").read_text())["train_config"]["gamma"] == float(gamma)
+        with open(run / "metrics.csv", newline="") as f:
+            losses[gamma] = float(next(r for r in csv.DictReader(f) if r["kind"] == "train")["loss"])
+    assert losses["1"] > 1.2 * losses["0.5"], losses
+
+
 def test_init_reference_without_a_shipped_model_names_the_option(tiny_train, tmp_path, monkeypatch):
     monkeypatch.setattr("projreg.checkpoint.reference_checkpoint", lambda: None)
     with pytest.raises(ProjregError, match="--init reference: no shipped reference model"):
