@@ -128,18 +128,17 @@ def test_kill_9_then_resume_matches_uninterrupted(tiny_train, tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
-def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
-    run = tmp_path / "ddp"
+def _torchrun_train(data, run, options: str) -> subprocess.CompletedProcess:
+    """``projreg train --data DATA --out RUN OPTIONS`` under ``torchrun`` with two CPU processes."""
     torchrun = [sys.executable, *"-m torch.distributed.run --standalone --nproc_per_node 2 -m projreg.cli".split()]
     env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}  # an abort shows every thread's stack
-    options = "--steps 3 --batch-size 1 --workers 0 --crop none".split()
-    done = subprocess.run(
-        torchrun + ["train", "--data", str(tiny_train), "--out", str(run), *options],
-        env=env,
-        timeout=300,
-        capture_output=True,
-        text=True,
-    )
+    args = ["train", "--data", str(data), "--out", str(run), *options.split()]
+    return subprocess.run(torchrun + args, env=env, timeout=300, capture_output=True, text=True)
+
+
+def test_torchrun_two_cpu_processes_agree_on_parameters(tiny_train, tmp_path):
+    run = tmp_path / "ddp"
+    done = _torchrun_train(tiny_train, run, "--steps 3 --batch-size 1 --workers 0 --crop none")
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-6000:]
     assert done.stderr.count(f"{run}: step 3, loss ") == 1  # rank 0 alone prints (and draws the bar)
     sums = __import__("json").loads((run / "ddp_params.json").read_text())
@@ -183,16 +182,7 @@ def test_torchrun_worker_error_is_one_line_and_exit_2(tiny_train, tmp_path):
     run = tmp_path / "ddp"
     (run / "checkpoints").mkdir(parents=True)
     (run / "checkpoints" / "last.pt").write_bytes(b"a run already here")
-    torchrun = [sys.executable, *"-m torch.distributed.run --standalone --nproc_per_node 2 -m projreg.cli".split()]
-    env = os.environ | {"OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"}
-    options = "--steps 3 --workers 0 --crop none --quiet".split()
-    done = subprocess.run(
-        torchrun + ["train", "--data", str(tiny_train), "--out", str(run), *options],
-        env=env,
-        timeout=300,
-        capture_output=True,
-        text=True,
-    )
+    done = _torchrun_train(tiny_train, run, "--steps 3 --workers 0 --crop none --quiet")
     assert done.returncode != 0
     assert f"projreg: error: --out {run}: already holds a run" in done.stderr
     assert "exitcode  : 2" in done.stderr and "Fatal Python error" not in done.stderr
