@@ -54,7 +54,7 @@ def stages(refiner: GeometricRefiner, variants: list[GeometricRefiner], sift, pr
     everywhere = np.ones((h, w), bool)  # the stages without the guards: every pixel counts as evidence
     fit = fit_homography(net, step, cfg.ransac_px)
     H = np.eye(3) if fit is None else fit[0]
-    base, residual, spline = refiner.hypothesis(gray0, gray1, H, weight, step, everywhere, everywhere, net)
+    base, residual, spline, _ = refiner.hypothesis(gray0, gray1, H, weight, step, everywhere, everywhere, net)
     identity = refiner.hypothesis(gray0, gray1, np.eye(3), weight, step, everywhere, everywhere, 0 * net)[2]
     return [
         net,

@@ -82,7 +82,9 @@ class RefineConfig:
     checks compare (0: no albedo candidates, and the checks see the normalised captured image as it
     is); ``max_side``: refine the pair shrunk to this longer side and bring the flow and the
     confidence back to its own grid (None: at its own size; the pixel parameters are then in the
-    shrunk pair's pixels).
+    shrunk pair's pixels); ``plane_margin``: the best-scoring homography alone (SIFT's, or one
+    refitted from a hypothesis before its residual is added) wins the selection when its score is
+    within this margin of the best candidate's (:meth:`GeometricRefiner.select`).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -111,6 +113,7 @@ class RefineConfig:
     coarse_peak: float = 0.93
     albedo_window: int = 31
     max_side: int | None = None
+    plane_margin: float = 0.005
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -122,6 +125,8 @@ class RefineConfig:
             raise ProjregError(f"refine max_side must be >= {MIN_SIDE}, got {self.max_side}")
         if self.albedo_window and (self.albedo_window < 3 or self.albedo_window % 2 == 0):
             raise ProjregError(f"refine albedo_window must be 0 (off) or an odd number >= 3, got {self.albedo_window}")
+        if not self.plane_margin >= 0:
+            raise ProjregError(f"refine plane_margin must be >= 0, got {self.plane_margin}")
         if not self.contrast_sigma >= 0:
             raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
 
@@ -235,7 +240,7 @@ class GeometricRefiner:
         support = near(textured, cfg.support_margin * max(h, w))
         hypotheses = self._hypotheses(projected, captured, flow, step, identity)
         cands, scores = self._candidates(images, hypotheses, plain, evidence, step, textured, support)
-        best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))  # ties: the first tried
+        best = self.select(scores)
         # a repeating pattern: a flow off by one period passes every check (computed once per pair)
         repeats = repeating(normalised[0], cfg.periodic_peak, cfg.coarse_peak) if cfg.periodic_peak < 1 else None
         conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
@@ -260,6 +265,16 @@ class GeometricRefiner:
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(cands[best], claimed if not why else np.zeros_like(claimed), not why, why)
         return pred, RefineInfo(name, kind, scores, conf, share)
+
+    def select(self, scores: dict[str, float]) -> str:
+        """The winning candidate: the highest score (ties: the first tried), unless a homography alone (a key
+        ending in "homography") scores within ``plane_margin`` of it. Where a plane explains the images as
+        well as the plane plus its fitted residual, the residual adds only DIS's noise, and sub-pixel
+        differences move the score by thousandths (docs/model.md, "selection")."""
+        best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))
+        planes = [k for k in scores if k.endswith("homography")]
+        plane = max(planes, key=lambda k: (scores[k], -list(scores).index(k)), default=None)
+        return plane if plane is not None and scores[plane] >= scores[best] - self.config.plane_margin else best
 
     def _hypotheses(
         self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, step: int, identity: bool
@@ -294,12 +309,12 @@ class GeometricRefiner:
         """Steps 2-4 from every hypothesis on every kind of images: the refined flows and their selection
         scores, keyed ``"HYPOTHESIS/IMAGES"`` in the order tried. The albedo images start from the
         network's and SIFT's homographies only: from the identity they changed nothing on the validation
-        split and cost a fifth more time (docs/model.md, "Textured walls"). SIFT's homography also
-        competes unrefined (``"sift/homography"``): on a planar scene it is exact to a few hundredths of
-        a pixel, and the DIS residual would only add its own noise."""
+        split and cost a fifth more time (docs/model.md, "Textured walls"). The homographies alone compete
+        too: SIFT's (``"sift/homography"``) and each one refitted before its residual is added
+        (``"HYPOTHESIS/IMAGES-homography"``); on a planar scene the residual adds only DIS's noise."""
         cfg = self.config
         normalised = images["normalised"]
-        cands, scores = {}, {}
+        cands, planes, scores = {}, {}, {}
         for kind, (gray0, gray1) in images.items():
             weight = texture_weight(gray0, 0.0 if kind == "normalised" else cfg.texture_floor)
             albedo = cfg.albedo_window if kind == "albedo" else 0
@@ -307,9 +322,14 @@ class GeometricRefiner:
                 if H is None or (albedo and name == "identity"):
                     continue
                 key = f"{name}/{kind}"
-                cands[key] = self.hypothesis(gray0, gray1, H, weight, step, textured, support, prior, albedo)[2]
-        if "sift" in hypotheses:  # a plane: SIFT's homography as it is, which no residual refines
-            cands["sift/homography"] = homography_flow(hypotheses["sift"][0], *normalised[0].shape)
+                base, _, cands[key], refitted = self.hypothesis(
+                    gray0, gray1, H, weight, step, textured, support, prior, albedo
+                )
+                if refitted:  # a start that did not refit (e.g. a lens homography too bent to answer) is no answer
+                    planes[f"{key}-homography"] = bound_outside(base, prior, support, cfg.free_px)
+        if "sift" in hypotheses:  # SIFT's homography as it is, which no residual refines
+            planes["sift/homography"] = homography_flow(hypotheses["sift"][0], *normalised[0].shape)
+        cands.update(planes)
         for key, flow in cands.items():
             scores[key] = weighted_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma, evidence)
         return cands, scores
@@ -346,7 +366,7 @@ class GeometricRefiner:
         support: np.ndarray,
         prior: np.ndarray,
         albedo: int = 0,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         """Steps 2-3 from one starting homography, on one pair of gray images (normalised or plain;
         plain with an ``albedo`` window: the residual divides the wall's reflectance out, :meth:`_residual`),
         with the guards: the refit uses ``textured`` pixels only and must be well conditioned, and
@@ -355,9 +375,9 @@ class GeometricRefiner:
         flow, or zero for the identity).
 
         Returns:
-            ``(base, residual, flow)``, float32 ``(H, W, 2)`` each: the refitted homography's flow, the
-            DIS residual measured on it, and the refined flow ``compose(base, spline(residual))``
-            (:meth:`surface`).
+            ``(base, residual, flow, refitted)``: float32 ``(H, W, 2)`` each, the refitted homography's flow
+            (the start's where the refit found none: ``refitted`` False), the DIS residual measured on it,
+            and the refined flow ``compose(base, spline(residual))`` (:meth:`surface`).
         """
         cfg = self.config
         h, w = gray0.shape
@@ -367,7 +387,7 @@ class GeometricRefiner:
         if fit is not None:
             base = homography_flow(fit[0], h, w)
         residual = self._residual(gray0, gray1, base, albedo)  # [H, W, 2], in the projector frame
-        return base, residual, self.surface(base, residual, weight, step, support, prior)
+        return base, residual, self.surface(base, residual, weight, step, support, prior), fit is not None
 
     def surface(
         self,
@@ -410,7 +430,9 @@ class GeometricRefiner:
         fwd = self._dis.calc(gray0, warped, None)  # what is left to move: ~0 where the flow holds
         bwd = self._dis.calc(warped, gray0, None)
         fb = np.maximum(np.linalg.norm(fwd, axis=-1), np.linalg.norm(compose(bwd, fwd), axis=-1))  # [H, W]
-        rivals = [cands[k] for k in cands if k != best and scores[k] >= scores[best] - cfg.rival_margin]
+        # a refitted plane is its candidate simplified, not another explanation of the images: no rival
+        close = [k for k in cands if k != best and not k.endswith("-homography")]
+        rivals = [cands[k] for k in close if scores[k] >= scores[best] - cfg.rival_margin]
         spread = np.zeros(flow.shape[:2], np.float32)
         for other in rivals:
             spread = np.maximum(spread, np.linalg.norm(other - flow, axis=-1))
