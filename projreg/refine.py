@@ -84,7 +84,9 @@ class RefineConfig:
     confidence back to its own grid (None: at its own size; the pixel parameters are then in the
     shrunk pair's pixels); ``plane_margin``: the best-scoring homography alone (SIFT's, or one
     refitted from a hypothesis before its residual is added) wins the selection when its score is
-    within this margin of the best candidate's (:meth:`GeometricRefiner.select`).
+    within this margin of the best candidate's (:meth:`GeometricRefiner.select`); ``plane_agree_px``:
+    a refitted homography competes only where it stays within this distance of its candidate (the
+    homography plus the residual) on 90 % of the textured pixels (:func:`plane_agrees`).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -114,6 +116,7 @@ class RefineConfig:
     albedo_window: int = 31
     max_side: int | None = None
     plane_margin: float = 0.005
+    plane_agree_px: float = 2.0
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -125,8 +128,9 @@ class RefineConfig:
             raise ProjregError(f"refine max_side must be >= {MIN_SIDE}, got {self.max_side}")
         if self.albedo_window and (self.albedo_window < 3 or self.albedo_window % 2 == 0):
             raise ProjregError(f"refine albedo_window must be 0 (off) or an odd number >= 3, got {self.albedo_window}")
-        if not self.plane_margin >= 0:
-            raise ProjregError(f"refine plane_margin must be >= 0, got {self.plane_margin}")
+        for name in ("plane_margin", "plane_agree_px"):
+            if not getattr(self, name) >= 0:
+                raise ProjregError(f"refine {name} must be >= 0, got {getattr(self, name)}")
         if not self.contrast_sigma >= 0:
             raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
 
@@ -311,7 +315,8 @@ class GeometricRefiner:
         network's and SIFT's homographies only: from the identity they changed nothing on the validation
         split and cost a fifth more time (docs/model.md, "Textured walls"). The homographies alone compete
         too: SIFT's (``"sift/homography"``) and each one refitted before its residual is added
-        (``"HYPOTHESIS/IMAGES-homography"``); on a planar scene the residual adds only DIS's noise."""
+        (``"HYPOTHESIS/IMAGES-homography"``), where it refitted and stays close to its candidate on the
+        textured pixels (:func:`plane_agrees`); on a planar scene the residual adds only DIS's noise."""
         cfg = self.config
         normalised = images["normalised"]
         cands, planes, scores = {}, {}, {}
@@ -325,8 +330,9 @@ class GeometricRefiner:
                 base, _, cands[key], refitted = self.hypothesis(
                     gray0, gray1, H, weight, step, textured, support, prior, albedo
                 )
-                if refitted:  # a start that did not refit (e.g. a lens homography too bent to answer) is no answer
-                    planes[f"{key}-homography"] = bound_outside(base, prior, support, cfg.free_px)
+                plane = bound_outside(base, prior, support, cfg.free_px)
+                if refitted and plane_agrees(plane, cands[key], textured, cfg.plane_agree_px):
+                    planes[f"{key}-homography"] = plane
         if "sift" in hypotheses:  # SIFT's homography as it is, which no residual refines
             planes["sift/homography"] = homography_flow(hypotheses["sift"][0], *normalised[0].shape)
         cands.update(planes)
@@ -598,6 +604,21 @@ def area_ratio(H: np.ndarray, h: int, w: int) -> float:
     corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], np.float64)
     det = np.linalg.det(np.asarray(H, np.float64)) / (corners @ np.asarray(H, np.float64)[2]) ** 3  # [4]
     return float(det.max() / det.min()) if (det > 0).all() else math.inf
+
+
+def plane_agrees(plane: np.ndarray, flow: np.ndarray, textured: np.ndarray, px: float) -> bool:
+    """Whether a homography's flow stays within ``px`` of the refined ``flow`` it was simplified from on 90 %
+    of the ``textured`` pixels: only then is it the same explanation of the images with less noise. Where
+    the residual moved the answer farther (a low-contrast pair whose residual wandered, a bent surface),
+    a close score says only that the images cannot tell the two apart.
+
+    Example:
+        >>> f = np.zeros((4, 4, 2), np.float32)
+        >>> plane_agrees(f, f + 1.0, np.ones((4, 4), bool), 2.0), plane_agrees(f, f + 3.0, np.ones((4, 4), bool), 2.0)
+        (True, False)
+    """
+    gap = np.linalg.norm(plane - flow, axis=-1)[textured]
+    return bool(gap.size) and float(np.percentile(gap, 90)) <= px
 
 
 def near(mask: np.ndarray, radius: float) -> np.ndarray:

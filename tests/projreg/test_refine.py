@@ -28,6 +28,7 @@ from projreg.refine import (
     near,
     normalize_contrast,
     periodicity,
+    plane_agrees,
     repeating,
     texture_weight,
     warp_back,
@@ -567,6 +568,22 @@ def test_select_prefers_a_homography_alone_within_the_plane_margin():
     assert GeometricRefiner().select({"identity/plain": 0.5, "network/plain": 0.7}) == "network/plain"
     with pytest.raises(ProjregError, match="plane_margin"):
         RefineConfig(plane_margin=-0.1)
+    with pytest.raises(ProjregError, match="plane_agree_px"):
+        RefineConfig(plane_agree_px=-1.0)
+
+
+def test_a_plane_stands_in_for_its_candidate_only_where_they_agree_on_the_texture():
+    flow = np.zeros((20, 30, 2), np.float32)
+    textured = np.zeros((20, 30), bool)
+    textured[:, :10] = True
+    moved = flow.copy()
+    moved[:, 10:] += 5.0  # far off where there is no texture: no matter
+    assert plane_agrees(flow, moved, textured, 2.0)
+    moved[:2, :10] += 5.0  # off on 10 % of the textured pixels: the 90th percentile still agrees
+    assert plane_agrees(flow, moved, textured, 2.0)
+    moved[:6, :10] += 5.0
+    assert not plane_agrees(flow, moved, textured, 2.0)
+    assert not plane_agrees(flow, flow, np.zeros_like(textured), 2.0)  # no texture: no evidence for it
 
 
 def test_a_planar_pair_is_answered_by_a_homography_alone(picture):
