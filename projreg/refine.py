@@ -136,9 +136,10 @@ class RefineConfig:
 
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate and its
-# homography alone instead of eight and their homographies), without the detail level, the periodicity test and the albedo images, on the pair shrunk to
-# 256 px with the pixel parameters halved (windows, thresholds, fit points for a 384 x 512 pair; its
-# contrast window, 8 px, is half the full-size default before session 9, as measured);
+# homography alone instead of eight and their homographies), without the detail level, the periodicity
+# test and the albedo images, on the pair shrunk to 256 px with the pixel parameters halved (windows,
+# thresholds, fit points for a 384 x 512 pair; its contrast window, 8 px, is half the full-size default
+# before session 9, as measured);
 # docs/benchmarks.md ("Inference latency")
 FAST_REFINE = RefineConfig(
     plain_pass=False,
