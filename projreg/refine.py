@@ -276,9 +276,13 @@ class GeometricRefiner:
         ending in "homography") scores within ``plane_margin`` of it. Where a plane explains the images as
         well as the plane plus its fitted residual, the residual adds only DIS's noise, and sub-pixel
         differences move the score by thousandths (docs/model.md, "selection")."""
-        best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))
-        planes = [k for k in scores if k.endswith("homography")]
-        plane = max(planes, key=lambda k: (scores[k], -list(scores).index(k)), default=None)
+        order = {key: i for i, key in enumerate(scores)}
+
+        def rank(key: str) -> tuple[float, int]:
+            return scores[key], -order[key]
+
+        best = max(scores, key=rank)
+        plane = max((k for k in scores if k.endswith("homography")), key=rank, default=None)
         return plane if plane is not None and scores[plane] >= scores[best] - self.config.plane_margin else best
 
     def _hypotheses(
