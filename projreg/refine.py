@@ -441,15 +441,38 @@ class GeometricRefiner:
         fwd = self._dis.calc(gray0, warped, None)  # what is left to move: ~0 where the flow holds
         bwd = self._dis.calc(warped, gray0, None)
         fb = np.maximum(np.linalg.norm(fwd, axis=-1), np.linalg.norm(compose(bwd, fwd), axis=-1))  # [H, W]
-        # a refitted plane is its candidate simplified, not another explanation of the images: no rival
-        close = [k for k in cands if k != best and not k.endswith("-homography")]
-        rivals = [cands[k] for k in close if scores[k] >= scores[best] - cfg.rival_margin]
-        spread = np.zeros(flow.shape[:2], np.float32)
-        for other in rivals:
-            spread = np.maximum(spread, np.linalg.norm(other - flow, axis=-1))
         ncc = local_ncc(gray0, warped, cfg.ncc_sigma)
+        spread = self.ambiguity(normalised, cands, scores, best, ncc, plain)
         conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
         return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
+
+    def ambiguity(
+        self,
+        normalised: tuple[np.ndarray, np.ndarray],
+        cands: dict[str, np.ndarray],
+        scores: dict[str, float],
+        best: str,
+        ncc: np.ndarray,
+        plain: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """How far, per pixel, the rivals of candidate ``best`` that explain the images about as well lie from
+        it (px, float32 ``(H, W)``; the confidence's ``spread``).
+
+        A rival is a candidate scoring within ``rival_margin`` of the winner (a refitted plane is its
+        candidate simplified, not another explanation: never a rival), and it counts at a pixel only
+        where its own local NCC is within ``rival_margin`` of the winner's ``ncc`` there. Two answers
+        that both explain a neighbourhood (a repeating pattern) leave it ambiguous; a rival that fails
+        there (a candidate whose residual did not converge on that part of the frame) is just wrong
+        there and took 2 points of claimed share from the development rig (docs/model.md)."""
+        cfg, flow = self.config, cands[best]
+        spread = np.zeros(flow.shape[:2], np.float32)
+        for key, other in cands.items():
+            if key == best or key.endswith("-homography") or scores[key] < scores[best] - cfg.rival_margin:
+                continue
+            rival_ncc = local_ncc(normalised[0], self.seen(other, normalised, plain), cfg.ncc_sigma)
+            explains = rival_ncc >= ncc - cfg.rival_margin
+            spread = np.maximum(spread, np.where(explains, np.linalg.norm(other - flow, axis=-1), 0.0))
+        return spread
 
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
         """The selection score of ``flow`` on a pair of uint8 RGB images, as :meth:`predict_info` scores its

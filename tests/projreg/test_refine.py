@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from projreg import ProjregError
-from projreg.baselines import SiftRansac, homography_flow
+from projreg.baselines import SiftRansac, homography_flow, to_gray
 from projreg.confidence import CONFIDENT
 from projreg.frames import resize_flow, shrink
 from projreg.refine import (
@@ -25,6 +25,7 @@ from projreg.refine import (
     fit_bspline,
     fit_detail,
     fit_homography,
+    local_ncc,
     near,
     normalize_contrast,
     periodicity,
@@ -632,3 +633,32 @@ def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(sampl
 def test_refine_max_side_is_checked():
     with pytest.raises(ProjregError, match="refine max_side must be >= 32"):
         RefineConfig(max_side=16)
+
+
+def _spread(ref, projected, captured, cands, scores, best):
+    """The confidence's ``spread`` for candidate ``best`` of ``cands`` on a pair (RefineInfo-like inputs)."""
+    plain, normalised, _ = ref.views(projected, captured)
+    ncc = local_ncc(normalised[0], ref.seen(cands[best], normalised, plain), ref.config.ncc_sigma)
+    return ref.ambiguity(normalised, cands, scores, best, ncc, plain)
+
+
+def test_a_rival_is_ambiguity_only_where_it_also_explains_the_images(picture):
+    """The confidence's rivals: one that scores as well but is wrong on a region counts nowhere there; one
+    one period off on a repeating pattern explains the images as well and counts everywhere."""
+    projected, captured, flow, valid = _bent_pair(picture)
+    ref = GeometricRefiner()
+    wrong = flow.copy()
+    wrong[:, 128:] += np.float32([6.0, -5.0])  # right on the left half, 7.8 px off on the right half
+    cands = {"truth": flow, "rival": wrong}
+    spread = _spread(ref, projected, captured, cands, {"truth": 0.8, "rival": 0.8}, "truth")
+    textured = (texture_weight(to_gray(projected), ref.config.texture_floor) >= 0.5) & valid
+    right = textured & (np.arange(256) >= 140)[None, :]
+    assert np.median(spread[right]) == 0.0  # the rival does not explain the right half: not ambiguous there
+    below = _spread(ref, projected, captured, cands, {"truth": 0.8, "rival": 0.7}, "truth")
+    assert below.max() == 0.0  # scoring beyond the margin: no rival at all
+    h, w = 160, 224
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    grating = np.repeat((128 + 90 * np.sin(2 * np.pi * (x + 0.15 * y) / 9)).astype(np.uint8)[..., None], 3, axis=2)
+    cands = {"zero": np.zeros((h, w, 2), np.float32), "period": np.full((h, w, 2), [9.0, 0.0], np.float32)}
+    spread = _spread(ref, grating, grating, cands, {"zero": 0.9, "period": 0.9}, "zero")
+    assert np.median(spread[20:-20, 20:-20]) == pytest.approx(9.0)
