@@ -52,23 +52,40 @@ def pixel_confidence(
     the rectified pair and its forward-backward inconsistency (1 at <= 2 px, 0 at >= 4 px); and
     ``spread`` (px), how far the candidates that scored almost as well lie from this flow (1 at <= 2
     px, 0 at >= 4 px: two answers that explain the images equally well, as on a repetitive pattern,
-    leave the pixel ambiguous). A normalised convolution (Gaussian, sigma ``radius`` px) weighted by
-    ``texture`` averages the pass marks around every pixel; the result is multiplied by how much
-    texture that window holds (0 at a texture density <= 0.05, 1 at >= 0.2), so a flat region far
-    from any texture gets 0 whatever the flow.
+    leave the pixel ambiguous). The pass marks are averaged around every pixel at two scales, and the
+    larger counts (:func:`neighbourhood`): a Gaussian of sigma ``radius`` px, multiplied by how much
+    texture it holds (0 at a texture density <= 0.05, 1 at >= 0.2), and one of twice that sigma, which
+    asks for more texture (0 at <= 0.1): the coarse one carries the verdict across a flat gap between
+    verified textured regions, which the surface model interpolates; a flat region far from any
+    texture gets 0 whatever the flow.
 
     Args:
         texture: the projected image's texture weight in [0, 1] (``refine.texture_weight`` with its
             absolute floor), float ``(H, W)``.
         ncc, residual, spread: float ``(H, W)`` as above.
-        radius: Gaussian sigma of the neighbourhood, px.
+        radius: Gaussian sigma of the fine neighbourhood, px.
 
     Returns:
         float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``. The break points
-        were chosen on the validation split (docs/model.md).
+        were chosen on the validation split, the coarse scale on development sets (docs/model.md).
     """
     passed = np.minimum.reduce([ramp(ncc, 0.3, 0.6), ramp(residual, 4.0, 2.0), ramp(spread, 4.0, 2.0)])
     w = np.asarray(texture, np.float32)
-    density = cv2.GaussianBlur(w, (0, 0), radius)
-    agree = cv2.GaussianBlur(w * passed, (0, 0), radius) / np.maximum(density, 1e-6)
-    return (agree * ramp(density, 0.05, 0.2)).astype(np.float32)
+    fine = neighbourhood(w, passed, radius, 0.05)
+    return np.maximum(fine, neighbourhood(w, passed, 2 * radius, 0.1)).astype(np.float32)
+
+
+def neighbourhood(texture: np.ndarray, passed: np.ndarray, sigma: float, sparse: float) -> np.ndarray:
+    """The ``passed`` marks (float ``(H, W)`` in [0, 1]) averaged around every pixel by a normalised
+    convolution weighted by ``texture`` (Gaussian, ``sigma`` px), times how much texture the window
+    holds: 0 at a density <= ``sparse``, 1 at >= 0.2.
+
+    Example:
+        >>> w = np.zeros((40, 40), np.float32); w[:, :20] = 1.0
+        >>> c = neighbourhood(w, np.ones_like(w), 3.0, 0.05)
+        >>> round(float(c[20, 10]), 3), round(float(c[20, 35]), 3)
+        (1.0, 0.0)
+    """
+    density = cv2.GaussianBlur(texture, (0, 0), sigma)
+    agree = cv2.GaussianBlur(texture * passed, (0, 0), sigma) / np.maximum(density, 1e-6)
+    return agree * ramp(density, sparse, 0.2)
