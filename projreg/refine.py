@@ -253,24 +253,25 @@ class GeometricRefiner:
         textured = evidence >= 0.5
         support = near(textured, cfg.support_margin * max(h, w))
         hypotheses = self._hypotheses(projected, captured, flow, step, identity)
-        cands, scores = self._candidates(images, hypotheses, plain, evidence, step, textured, support)
+        memo: dict[str, np.ndarray] = {}  # each candidate's check maps: scored once, the confidence runs up to 3 times
+        cands, scores = self._candidates(images, hypotheses, plain, evidence, step, textured, support, memo)
         best = self.select(scores)
         # a repeating pattern: a flow off by one period passes every check (computed once per pair)
         repeats = repeating(normalised[0], cfg.periodic_peak, cfg.coarse_peak) if cfg.periodic_peak < 1 else None
-        conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
+        conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain, memo)
         grown = self.grown(cands[best], conf >= CONFIDENT, step)
         if grown:  # the verified region's plane, refined again, may verify more of the frame
-            more, more_scores = self._candidates(images, grown, plain, evidence, step, textured, support)
+            more, more_scores = self._candidates(images, grown, plain, evidence, step, textured, support, memo)
             cands.update(more)
             scores.update(more_scores)
             best = self.select(scores)
-            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
+            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain, memo)
         net = [k for k in scores if k.startswith("network/")]
         if (conf >= CONFIDENT).mean() < cfg.min_evidence and net and best not in net:
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than the identity's
             best = max(net, key=lambda k: scores[k])
-            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain)
+            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain, memo)
         claimed = conf >= CONFIDENT
         why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeats, textured)
         if why and hypotheses["network"][0] is not None:
@@ -350,6 +351,7 @@ class GeometricRefiner:
         step: int,
         textured: np.ndarray,
         support: np.ndarray,
+        memo: dict[str, np.ndarray],
     ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         """Steps 2-4 from every hypothesis on every kind of images: the refined flows and their selection
         scores, keyed ``"HYPOTHESIS/IMAGES"`` in the order tried. The albedo images start from the
@@ -357,7 +359,9 @@ class GeometricRefiner:
         split and cost a fifth more time (docs/model.md, "Textured walls"). The homographies alone compete
         too: SIFT's (``"sift/homography"``) and each one refitted before its residual is added
         (``"HYPOTHESIS/IMAGES-homography"``), where it refitted and stays close to its candidate on the
-        textured pixels (:func:`plane_agrees`); on a planar scene the residual adds only DIS's noise."""
+        textured pixels (:func:`plane_agrees`); on a planar scene the residual adds only DIS's noise. ``memo``
+        receives each candidate's local NCC map (key ``"ncc:KEY"``), which the score averages and the
+        confidence reads again (:meth:`confidence`)."""
         cfg = self.config
         normalised = images["normalised"]
         cands, planes, scores = {}, {}, {}
@@ -377,8 +381,9 @@ class GeometricRefiner:
         if "sift" in hypotheses:  # SIFT's homography as it is, which no residual refines
             planes["sift/homography"] = homography_flow(hypotheses["sift"][0], *normalised[0].shape)
         cands.update(planes)
-        for key, flow in cands.items():
-            scores[key] = weighted_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma, evidence)
+        for key, flow in cands.items():  # the local NCC maps are the confidence's too (memo)
+            memo[f"ncc:{key}"] = local_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma)
+            scores[key] = weighted_mean(memo[f"ncc:{key}"], evidence)
         return cands, scores
 
     def _predict_shrunk(
@@ -466,21 +471,44 @@ class GeometricRefiner:
         evidence: np.ndarray,
         repeating: np.ndarray | None = None,
         plain: tuple[np.ndarray, np.ndarray] | None = None,
+        memo: dict[str, np.ndarray] | None = None,
     ) -> np.ndarray:
         """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`projreg.confidence.pixel_confidence`):
         texture, local NCC, forward-backward residual and agreement with the close runners-up; 0 where
-        ``repeating`` (bool ``(H, W)``: the projected image repeats itself, :func:`periodicity`)."""
+        ``repeating`` (bool ``(H, W)``: the projected image repeats itself, :func:`periodicity`). ``memo``
+        (a dict kept for one pair) holds each candidate's check maps, so a second call on the same
+        candidates computes only what is new."""
         cfg = self.config
-        gray0 = normalised[0]
-        flow = cands[best]
-        warped = self.seen(flow, normalised, plain)
-        fwd = self._dis.calc(gray0, warped, None)  # what is left to move: ~0 where the flow holds
-        bwd = self._dis.calc(warped, gray0, None)
-        fb = np.maximum(np.linalg.norm(fwd, axis=-1), np.linalg.norm(compose(bwd, fwd), axis=-1))  # [H, W]
-        ncc = local_ncc(gray0, warped, cfg.ncc_sigma)
-        spread = self.ambiguity(normalised, cands, scores, best, ncc, plain)
-        conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(gray0.shape))
+        memo = {} if memo is None else memo
+        if f"residual:{best}" not in memo:
+            memo[f"residual:{best}"] = self.round_trip(normalised[0], self.seen(cands[best], normalised, plain))
+        fb = memo[f"residual:{best}"]
+        ncc = self.local(best, cands, normalised, plain, memo)
+        spread = self.ambiguity(normalised, cands, scores, best, ncc, plain, memo)
+        conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(normalised[0].shape))
         return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
+
+    def round_trip(self, gray0: np.ndarray, warped: np.ndarray) -> np.ndarray:
+        """Forward-backward residual (px, ``(H, W)``) between the projected image and the captured one
+        warped back by a flow: what DIS still finds to move, either way round; ~0 where the flow holds."""
+        fwd = self._dis.calc(gray0, warped, None)
+        bwd = self._dis.calc(warped, gray0, None)
+        return np.maximum(np.linalg.norm(fwd, axis=-1), np.linalg.norm(compose(bwd, fwd), axis=-1))
+
+    def local(
+        self,
+        key: str,
+        cands: dict[str, np.ndarray],
+        normalised: tuple[np.ndarray, np.ndarray],
+        plain: tuple[np.ndarray, np.ndarray] | None,
+        memo: dict[str, np.ndarray],
+    ) -> np.ndarray:
+        """Local NCC map of candidate ``key`` (:func:`local_ncc` of what :meth:`seen` shows), kept in ``memo``."""
+        if f"ncc:{key}" not in memo:
+            memo[f"ncc:{key}"] = local_ncc(
+                normalised[0], self.seen(cands[key], normalised, plain), self.config.ncc_sigma
+            )
+        return memo[f"ncc:{key}"]
 
     def ambiguity(
         self,
@@ -490,6 +518,7 @@ class GeometricRefiner:
         best: str,
         ncc: np.ndarray,
         plain: tuple[np.ndarray, np.ndarray] | None = None,
+        memo: dict[str, np.ndarray] | None = None,
     ) -> np.ndarray:
         """How far, per pixel, the rivals of candidate ``best`` that explain the images about as well lie from
         it (px, float32 ``(H, W)``; the confidence's ``spread``).
@@ -499,14 +528,15 @@ class GeometricRefiner:
         where its own local NCC is within ``rival_margin`` of the winner's ``ncc`` there. Two answers
         that both explain a neighbourhood (a repeating pattern) leave it ambiguous; a rival that fails
         there (a candidate whose residual did not converge on that part of the frame) is just wrong
-        there and took 2 points of claimed share from the development rig (docs/model.md)."""
+        there and took 2 points of claimed share from the development rig (docs/model.md). ``memo``: as
+        in :meth:`confidence`."""
         cfg, flow = self.config, cands[best]
+        memo = {} if memo is None else memo
         spread = np.zeros(flow.shape[:2], np.float32)
         for key, other in cands.items():
             if key == best or key.endswith("-homography") or scores[key] < scores[best] - cfg.rival_margin:
                 continue
-            rival_ncc = local_ncc(normalised[0], self.seen(other, normalised, plain), cfg.ncc_sigma)
-            explains = rival_ncc >= ncc - cfg.rival_margin
+            explains = self.local(key, cands, normalised, plain, memo) >= ncc - cfg.rival_margin
             spread = np.maximum(spread, np.where(explains, np.linalg.norm(other - flow, axis=-1), 0.0))
         return spread
 
@@ -1021,7 +1051,11 @@ def alignment_score(
 
 def weighted_ncc(gray0: np.ndarray, warped: np.ndarray, sigma: float, weight: np.ndarray | None) -> float:
     """:func:`alignment_score` of an image already warped into the projector frame."""
-    ncc = local_ncc(gray0, warped, sigma)
+    return weighted_mean(local_ncc(gray0, warped, sigma), weight)
+
+
+def weighted_mean(values: np.ndarray, weight: np.ndarray | None) -> float:
+    """The mean of ``values`` weighted by ``weight`` (None: uniform)."""
     if weight is None:
-        return float(ncc.mean())
-    return float((ncc * weight).sum() / max(float(weight.sum()), 1e-6))
+        return float(values.mean())
+    return float((values * weight).sum() / max(float(weight.sum()), 1e-6))

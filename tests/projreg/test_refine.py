@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+import projreg.refine as refine_module
 from projreg import ProjregError
 from projreg.baselines import SiftRansac, homography_flow, to_gray
 from projreg.confidence import CONFIDENT
@@ -698,3 +699,29 @@ def test_grown_needs_a_partial_claim_and_a_plane_under_it():
     assert GeometricRefiner(RefineConfig(grow_below=0.0)).grown(flow, left, step) == {}
     with pytest.raises(ProjregError, match="grow_below"):
         RefineConfig(grow_below=1.5)
+
+
+def test_each_candidates_local_ncc_is_computed_once_per_pair(picture, monkeypatch):
+    """The confidence runs again after growth: every candidate's local NCC map is the one its score
+    averaged (computed once per pair), and the memoised confidence is the one computed afresh."""
+    projected, captured, flow, _ = _bent_pair(picture, amp=8.0, period=300.0)
+    network = flow.copy()
+    network[:, :154] += np.float32([40.0, -20.0])  # the growth case: the confidence runs twice
+    ref = GeometricRefiner(RefineConfig(identity_pass=False, sift_pass=False))
+    cands, computed = {}, []
+    candidates, ncc = ref._candidates, refine_module.local_ncc
+
+    def kept(*args):
+        more, scores = candidates(*args)
+        cands.update(more)
+        return more, scores
+
+    monkeypatch.setattr(ref, "_candidates", kept)
+    monkeypatch.setattr(refine_module, "local_ncc", lambda *args: computed.append(1) or ncc(*args))
+    pred, info = ref.predict_info(projected, captured, network)
+    assert info.hypothesis == "grown" and len(computed) == len(info.scores) == len(cands)
+    plain, normalised, evidence = ref.views(projected, captured)
+    repeats = repeating(normalised[0], ref.config.periodic_peak, ref.config.coarse_peak)
+    best = f"{info.hypothesis}/{info.images}"
+    fresh = ref.confidence(normalised, cands, info.scores, best, evidence, repeats, plain)
+    np.testing.assert_array_equal(fresh, info.confidence)
