@@ -69,10 +69,29 @@ def pixel_confidence(
         float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``. The break points
         were chosen on the validation split, the coarse scale on development sets (docs/model.md).
     """
-    passed = np.minimum.reduce([ramp(ncc, 0.3, 0.6), ramp(residual, 4.0, 2.0), ramp(spread, 4.0, 2.0)])
+    passed = pass_marks(ncc, residual, spread)
     w = np.asarray(texture, np.float32)
     fine = neighbourhood(w, passed, radius, 0.05)
     return np.maximum(fine, neighbourhood(w, passed, 2 * radius, 0.1)).astype(np.float32)
+
+
+def gap_confidence(
+    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float
+) -> np.ndarray:
+    """The checks' verdict carried across a wide flat gap: the pass marks (:func:`pixel_confidence`'s
+    inputs) averaged at four times the sigma ``radius``, from a texture density of 0.1 (:func:`neighbourhood`).
+
+    Alone it would claim flat regions the surface model only guesses (on a development set of real
+    pictures one pair 15 px off at three times the sigma); ``refine`` uses it only where the answer also
+    agrees with the plane of its own claimed pixels, a second model of the gap (docs/model.md).
+    """
+    passed = pass_marks(ncc, residual, spread)
+    return neighbourhood(np.asarray(texture, np.float32), passed, 4 * radius, 0.1).astype(np.float32)
+
+
+def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """Each pixel's pass mark in [0, 1]: the weakest of the three checks (:func:`pixel_confidence`)."""
+    return np.minimum.reduce([ramp(ncc, 0.3, 0.6), ramp(residual, 4.0, 2.0), ramp(spread, 4.0, 2.0)])
 
 
 def neighbourhood(texture: np.ndarray, passed: np.ndarray, sigma: float, sparse: float) -> np.ndarray:

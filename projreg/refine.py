@@ -53,7 +53,7 @@ from threadpoolctl import ThreadpoolController
 
 from . import ProjregError
 from .baselines import SiftRansac, homography_flow, proper_homography, to_gray
-from .confidence import CONFIDENT, Prediction, pixel_confidence, ramp
+from .confidence import CONFIDENT, Prediction, gap_confidence, pixel_confidence, ramp
 from .frames import resize_flow, shrink
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
@@ -92,7 +92,9 @@ class RefineConfig:
     homography plus the residual) on 90 % of the textured pixels (:func:`plane_agrees`);
     ``grow_below``: when the answer claims less than this share of the frame, the homography of its
     claimed pixels starts one more hypothesis (``"grown"``), which competes with the rest
-    (:meth:`GeometricRefiner.grown`; 0: never).
+    (:meth:`GeometricRefiner.grown`; 0: never); ``bridge_px``: a registered answer also claims a wide flat
+    gap between verified texture (:func:`projreg.confidence.gap_confidence`) where it stays within this
+    distance of the homography of its own claimed pixels (:meth:`GeometricRefiner.bridged`; 0: never).
     """
 
     grid: tuple[int, int] = (6, 5)
@@ -124,6 +126,7 @@ class RefineConfig:
     plane_margin: float = 0.005
     plane_agree_px: float = 2.0
     grow_below: float = 0.8
+    bridge_px: float = 1.0
 
     def __post_init__(self) -> None:
         if min(self.grid) < 4:
@@ -137,7 +140,7 @@ class RefineConfig:
             raise ProjregError(f"refine albedo_window must be 0 (off) or an odd number >= 3, got {self.albedo_window}")
         if not 0 <= self.grow_below <= 1:
             raise ProjregError(f"refine grow_below must be in [0, 1] (0: never), got {self.grow_below}")
-        for name in ("plane_margin", "plane_agree_px"):
+        for name in ("plane_margin", "plane_agree_px", "bridge_px"):
             if not getattr(self, name) >= 0:
                 raise ProjregError(f"refine {name} must be >= 0, got {getattr(self, name)}")
         if not self.contrast_sigma >= 0:
@@ -274,6 +277,9 @@ class GeometricRefiner:
             conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain, memo)
         claimed = conf >= CONFIDENT
         why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeats, textured)
+        if not why and cfg.bridge_px > 0:  # the answer's flat gaps, where two models of them agree
+            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain, memo, bridge=True)
+            claimed = conf >= CONFIDENT
         if why and hypotheses["network"][0] is not None:
             # nothing verified: the residuals fitted on images that carry no evidence only add noise, and the
             # homography of the network's own flow is the smoothest statement of its hypothesis (docs/model.md)
@@ -472,12 +478,14 @@ class GeometricRefiner:
         repeating: np.ndarray | None = None,
         plain: tuple[np.ndarray, np.ndarray] | None = None,
         memo: dict[str, np.ndarray] | None = None,
+        bridge: bool = False,
     ) -> np.ndarray:
         """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`projreg.confidence.pixel_confidence`):
         texture, local NCC, forward-backward residual and agreement with the close runners-up; 0 where
         ``repeating`` (bool ``(H, W)``: the projected image repeats itself, :func:`periodicity`). ``memo``
         (a dict kept for one pair) holds each candidate's check maps, so a second call on the same
-        candidates computes only what is new."""
+        candidates computes only what is new. ``bridge``: also claim the flat gaps :meth:`bridged` allows
+        (for the final answer only: the growth and the fallback decide on the checks alone)."""
         cfg = self.config
         memo = {} if memo is None else memo
         if f"residual:{best}" not in memo:
@@ -485,8 +493,31 @@ class GeometricRefiner:
         fb = memo[f"residual:{best}"]
         ncc = self.local(best, cands, normalised, plain, memo)
         spread = self.ambiguity(normalised, cands, scores, best, ncc, plain, memo)
-        conf = pixel_confidence(evidence, ncc, fb, spread, cfg.confidence_radius * max(normalised[0].shape))
+        radius = cfg.confidence_radius * max(normalised[0].shape)
+        conf = pixel_confidence(evidence, ncc, fb, spread, radius)
+        if bridge:
+            conf = self.bridged(conf, cands[best], gap_confidence(evidence, ncc, fb, spread, radius))
         return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
+
+    def bridged(self, conf: np.ndarray, flow: np.ndarray, gap: np.ndarray) -> np.ndarray:
+        """``conf`` raised to ``gap`` (the checks averaged across a wide flat gap,
+        :func:`projreg.confidence.gap_confidence`) where ``flow`` stays within ``bridge_px`` of the homography
+        fitted to it on its claimed pixels (``conf >= CONFIDENT``); ``conf`` itself when that fit fails.
+
+        In a flat gap the answer is the surface model's interpolation; where the plane of the verified
+        region says the same, two models of the gap agree and the gap is claimed. Where the surface bends
+        away from that plane, or the answer is held to a guess (a region farther from texture than
+        ``support_margin``), they part and the claim stays with the checks. On a development rendering of
+        the real pictures: claimed 67.2 -> 69.7 %, worst claimed pair unchanged (docs/model.md)."""
+        cfg, (h, w) = self.config, flow.shape[:2]
+        claimed = conf >= CONFIDENT
+        fit = fit_homography(
+            flow, fit_step(h, w, cfg.fit_points), cfg.ransac_px, claimed, cfg.max_area_ratio, cfg.min_hull
+        )
+        if fit is None:
+            return conf
+        agree = np.linalg.norm(flow - homography_flow(fit[0], h, w), axis=-1) < cfg.bridge_px
+        return np.where(agree, np.maximum(conf, gap), conf).astype(np.float32)
 
     def round_trip(self, gray0: np.ndarray, warped: np.ndarray) -> np.ndarray:
         """Forward-backward residual (px, ``(H, W)``) between the projected image and the captured one

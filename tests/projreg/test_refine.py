@@ -723,5 +723,44 @@ def test_each_candidates_local_ncc_is_computed_once_per_pair(picture, monkeypatc
     plain, normalised, evidence = ref.views(projected, captured)
     repeats = repeating(normalised[0], ref.config.periodic_peak, ref.config.coarse_peak)
     best = f"{info.hypothesis}/{info.images}"
-    fresh = ref.confidence(normalised, cands, info.scores, best, evidence, repeats, plain)
+    fresh = ref.confidence(normalised, cands, info.scores, best, evidence, repeats, plain, bridge=True)
     np.testing.assert_array_equal(fresh, info.confidence)
+
+
+def test_a_flat_gap_is_claimed_where_the_answer_agrees_with_its_verified_plane(picture):
+    """A planar pair whose picture is flat over its middle third: the checks alone leave most of the gap
+    unclaimed (too far from texture); its answer agrees with the plane of the claimed pixels, so the
+    bridge claims it, and the answer there is right."""
+    gapped = picture.copy()
+    gapped[:, 88:168] = 140
+    projected, captured, flow, valid = _bent_pair(gapped, amp=0.0)
+    textured = texture_weight(to_gray(projected), RefineConfig().texture_floor) >= 0.5
+    network = _network_like(flow, textured, np.random.default_rng(3))
+    gap = np.zeros(flow.shape[:2], bool)
+    gap[:, 104:152] = True
+    gap &= valid
+    claims = {}
+    for bridge in (0.0, RefineConfig().bridge_px):
+        pred = GeometricRefiner(RefineConfig(bridge_px=bridge)).predict(projected, captured, network)
+        claims[bridge] = pred.claimed[gap].mean()
+    epe = np.linalg.norm(pred.flow - flow, axis=-1)[gap & pred.claimed]
+    assert claims[0.0] < 0.3 and claims[RefineConfig().bridge_px] > 0.9, claims
+    assert epe.mean() < 0.5 and epe.max() < 1.5, (epe.mean(), epe.max())
+
+
+def test_bridged_claims_only_where_the_answer_stays_on_the_claimed_pixels_plane():
+    ref = GeometricRefiner()
+    h, w = 120, 160
+    flow = homography_flow(np.array([[1.01, 0.02, 3.0], [-0.01, 0.99, -2.0], [1e-4, 0.0, 1.0]]), h, w)
+    flow[:, 70:90] += np.float32([2.0, 0.0])  # a stripe of the gap 2 px off the plane
+    conf = np.zeros((h, w), np.float32)
+    conf[:, :50] = conf[:, 110:] = 0.9  # verified on both sides
+    bridged = ref.bridged(conf, flow, np.full((h, w), 0.7, np.float32))
+    np.testing.assert_array_equal(bridged[:, :50], np.float32(0.9))  # a higher confidence is kept
+    on_plane = np.float32(0.7)
+    assert (bridged[:, 50:70] == on_plane).all() and (bridged[:, 90:110] == on_plane).all()  # bridged
+    assert (bridged[:, 70:90] == 0.0).all()  # off it: the checks' verdict stands
+    nothing = ref.bridged(np.zeros((h, w), np.float32), flow, np.ones((h, w), np.float32))
+    assert (nothing == 0).all()  # no claimed pixel, no plane: nothing bridged
+    with pytest.raises(ProjregError, match="bridge_px"):
+        RefineConfig(bridge_px=-1.0)
