@@ -86,7 +86,7 @@ def gap_confidence(
     agrees with the plane of its own claimed pixels, a second model of the gap (docs/model.md).
     """
     passed = pass_marks(ncc, residual, spread)
-    return neighbourhood(np.asarray(texture, np.float32), passed, 4 * radius, 0.1).astype(np.float32)
+    return neighbourhood(np.asarray(texture, np.float32), passed, 4 * radius, 0.1)
 
 
 def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray) -> np.ndarray:
@@ -99,12 +99,22 @@ def neighbourhood(texture: np.ndarray, passed: np.ndarray, sigma: float, sparse:
     convolution weighted by ``texture`` (Gaussian, ``sigma`` px), times how much texture the window
     holds: 0 at a density <= ``sparse``, 1 at >= 0.2.
 
+    A sigma of 32 px or more is applied on the grid shrunk ``sigma // 16`` times (area averages) and the
+    result brought back bilinearly: the map is smooth at that scale, and a full-size Gaussian that wide
+    took 2.7 s at 1080 x 1920 (claims moved on about 1 % of the pixels).
+
     Example:
         >>> w = np.zeros((40, 40), np.float32); w[:, :20] = 1.0
         >>> c = neighbourhood(w, np.ones_like(w), 3.0, 0.05)
         >>> round(float(c[20, 10]), 3), round(float(c[20, 35]), 3)
         (1.0, 0.0)
     """
-    density = cv2.GaussianBlur(texture, (0, 0), sigma)
-    agree = cv2.GaussianBlur(texture * passed, (0, 0), sigma) / np.maximum(density, 1e-6)
-    return agree * ramp(density, sparse, 0.2)
+    h, w = texture.shape
+    shrink = max(1, int(sigma // 16))
+    small = (max(1, w // shrink), max(1, h // shrink))
+    weights = [texture, texture * passed]
+    if shrink > 1:
+        weights = [cv2.resize(a, small, interpolation=cv2.INTER_AREA) for a in weights]
+    density, agree = (cv2.GaussianBlur(a, (0, 0), sigma / shrink) for a in weights)
+    out = agree / np.maximum(density, 1e-6) * ramp(density, sparse, 0.2)
+    return out if shrink == 1 else cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)

@@ -278,7 +278,9 @@ class GeometricRefiner:
         claimed = conf >= CONFIDENT
         why = "" if claimed.mean() >= cfg.min_evidence else unverified(claimed, repeats, textured)
         if not why and cfg.bridge_px > 0:  # the answer's flat gaps, where two models of them agree
-            conf = self.confidence(normalised, cands, scores, best, evidence, repeats, plain, memo, bridge=True)
+            radius = cfg.confidence_radius * max(h, w)
+            gap = gap_confidence(evidence, *self.checks(normalised, cands, scores, best, plain, memo), radius)
+            conf = self.bridged(conf, cands[best], gap if repeats is None else np.where(repeats, 0.0, gap))
             claimed = conf >= CONFIDENT
         if why and hypotheses["network"][0] is not None:
             # nothing verified: the residuals fitted on images that carry no evidence only add noise, and the
@@ -478,26 +480,32 @@ class GeometricRefiner:
         repeating: np.ndarray | None = None,
         plain: tuple[np.ndarray, np.ndarray] | None = None,
         memo: dict[str, np.ndarray] | None = None,
-        bridge: bool = False,
     ) -> np.ndarray:
         """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`projreg.confidence.pixel_confidence`):
         texture, local NCC, forward-backward residual and agreement with the close runners-up; 0 where
         ``repeating`` (bool ``(H, W)``: the projected image repeats itself, :func:`periodicity`). ``memo``
         (a dict kept for one pair) holds each candidate's check maps, so a second call on the same
-        candidates computes only what is new. ``bridge``: also claim the flat gaps :meth:`bridged` allows
-        (for the final answer only: the growth and the fallback decide on the checks alone)."""
-        cfg = self.config
+        candidates computes only what is new."""
+        radius = self.config.confidence_radius * max(normalised[0].shape)
+        conf = pixel_confidence(evidence, *self.checks(normalised, cands, scores, best, plain, memo), radius)
+        return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
+
+    def checks(
+        self,
+        normalised: tuple[np.ndarray, np.ndarray],
+        cands: dict[str, np.ndarray],
+        scores: dict[str, float],
+        best: str,
+        plain: tuple[np.ndarray, np.ndarray] | None = None,
+        memo: dict[str, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Candidate ``best``'s check maps, float32 ``(H, W)`` each: local NCC, forward-backward residual (px)
+        and the rivals' spread (px, :meth:`ambiguity`); the first two kept in ``memo``."""
         memo = {} if memo is None else memo
         if f"residual:{best}" not in memo:
             memo[f"residual:{best}"] = self.round_trip(normalised[0], self.seen(cands[best], normalised, plain))
-        fb = memo[f"residual:{best}"]
         ncc = self.local(best, cands, normalised, plain, memo)
-        spread = self.ambiguity(normalised, cands, scores, best, ncc, plain, memo)
-        radius = cfg.confidence_radius * max(normalised[0].shape)
-        conf = pixel_confidence(evidence, ncc, fb, spread, radius)
-        if bridge:
-            conf = self.bridged(conf, cands[best], gap_confidence(evidence, ncc, fb, spread, radius))
-        return conf if repeating is None else np.where(repeating, 0.0, conf).astype(np.float32)
+        return ncc, memo[f"residual:{best}"], self.ambiguity(normalised, cands, scores, best, ncc, plain, memo)
 
     def bridged(self, conf: np.ndarray, flow: np.ndarray, gap: np.ndarray) -> np.ndarray:
         """``conf`` raised to ``gap`` (the checks averaged across a wide flat gap,

@@ -9,7 +9,7 @@ import pytest
 import projreg.refine as refine_module
 from projreg import ProjregError
 from projreg.baselines import SiftRansac, homography_flow, to_gray
-from projreg.confidence import CONFIDENT
+from projreg.confidence import CONFIDENT, gap_confidence
 from projreg.frames import resize_flow, shrink
 from projreg.refine import (
     FAST_REFINE,
@@ -723,7 +723,9 @@ def test_each_candidates_local_ncc_is_computed_once_per_pair(picture, monkeypatc
     plain, normalised, evidence = ref.views(projected, captured)
     repeats = repeating(normalised[0], ref.config.periodic_peak, ref.config.coarse_peak)
     best = f"{info.hypothesis}/{info.images}"
-    fresh = ref.confidence(normalised, cands, info.scores, best, evidence, repeats, plain, bridge=True)
+    fresh = ref.confidence(normalised, cands, info.scores, best, evidence, repeats, plain)
+    gap = gap_confidence(evidence, *ref.checks(normalised, cands, info.scores, best, plain), 0.03 * 256)
+    fresh = ref.bridged(fresh, cands[best], np.where(repeats, 0.0, gap))
     np.testing.assert_array_equal(fresh, info.confidence)
 
 
