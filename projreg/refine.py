@@ -389,9 +389,8 @@ class GeometricRefiner:
         if "sift" in hypotheses:  # SIFT's homography as it is, which no residual refines
             planes["sift/homography"] = homography_flow(hypotheses["sift"][0], *normalised[0].shape)
         cands.update(planes)
-        for key, flow in cands.items():  # the local NCC maps are the confidence's too (memo)
-            memo[f"ncc:{key}"] = local_ncc(normalised[0], self.seen(flow, normalised, plain), cfg.ncc_sigma)
-            scores[key] = weighted_mean(memo[f"ncc:{key}"], evidence)
+        for key in cands:  # the local NCC maps are the confidence's too (memo)
+            scores[key] = weighted_mean(self.local(key, cands, normalised, plain, memo), evidence)
         return cands, scores
 
     def _predict_shrunk(
