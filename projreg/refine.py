@@ -149,9 +149,10 @@ class RefineConfig:
 
 # ``predict --fast``: the network's hypothesis on normalised images only (one candidate and its
 # homography alone instead of eight and their homographies), without the detail level, the periodicity
-# test and the albedo images, on the pair shrunk to 256 px with the pixel parameters halved (windows,
-# thresholds, fit points for a 384 x 512 pair; its contrast window, 8 px, is half the full-size default
-# before session 9, as measured);
+# test, the albedo images and the bridge (7 ms more than its 44 ms of refinement per pair, for 0.3
+# points of claims on validation), on the pair shrunk to 256 px with the pixel parameters halved
+# (windows, thresholds, fit points for a 384 x 512 pair; its contrast window, 8 px, is half the
+# full-size default before session 9, as measured);
 # docs/benchmarks.md ("Inference latency")
 FAST_REFINE = RefineConfig(
     plain_pass=False,
@@ -168,6 +169,7 @@ FAST_REFINE = RefineConfig(
     detail_grid=None,
     periodic_peak=1.0,
     albedo_window=0,
+    bridge_px=0.0,
 )
 
 
