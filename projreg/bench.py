@@ -48,6 +48,7 @@ import torch
 from projsynth import ProjsynthError
 from projsynth.export import png_bytes
 from projsynth.flowio import write_atomic_all
+from projsynth.outputs import folder_files, refuse_overwriting_inputs
 from projsynth.shards import ShardReader
 
 from . import ProjregError
@@ -488,7 +489,7 @@ def versus_baselines(results: Sequence[dict], ratio_limit: float = RATIO_LIMIT) 
     base = [r for r in results if r["kind"] == "baseline"]
     if not base:
         return {}
-    means = {r["name"]: _mean([p["epe"] for p in r["pairs"]]) for r in base}
+    means = {r["name"]: _mean([p["epe"] for p in r["pairs"] if p["epe"] is not None]) for r in base}
     best_name = min(means, key=lambda n: math.inf if means[n] is None else means[n])
     out = {}
     for r in (r for r in results if r["kind"] == "model"):
@@ -717,6 +718,27 @@ def to_markdown(report: dict) -> str:
     if report["versus_baselines"]:
         lines += ["Each model against the best baseline of each pair:", "", versus_table(report), ""]
     return "\n".join(lines)
+
+
+def check_outputs(data: Path, models: Sequence[Path], outputs: Sequence[tuple[str, Path | None]]) -> None:
+    """Refuse, before any work, a report path that is one of the inputs (a file of the dataset, a
+    model) or another report path: the report would destroy what it measured.
+
+    Raises:
+        ProjregError: naming both options.
+    """
+    inputs = folder_files("--data", Path(data))
+    for spec in models:
+        path = Path(spec)
+        if path.exists():
+            inputs.append(("--model", path))
+    reference = reference_checkpoint()
+    if reference is not None:
+        inputs.append(("--model", reference))
+    try:
+        refuse_overwriting_inputs(outputs, inputs)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from None
 
 
 def write_outputs(

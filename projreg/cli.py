@@ -243,7 +243,7 @@ def export(
             metavar="FILE.onnx",
         ),
     ] = None,
-    opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (>= 16).", metavar="N")] = 18,
+    opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (16..23 with torch 2.13).", metavar="N")] = 18,
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
     from .checkpoint import export_checkpoint
@@ -300,8 +300,12 @@ def bench(
             metavar="on|off|both",
         ),
     ] = "on",
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write the report as JSON.", metavar="FILE")] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", metavar="FILE")] = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write the report as JSON.", parser=output_path, metavar="FILE")
+    ] = None,
+    markdown: Annotated[
+        Path | None, typer.Option(help="Write the Markdown tables.", parser=output_path, metavar="FILE")
+    ] = None,
     fail_above: Annotated[
         list[str] | None,
         typer.Option(
@@ -321,7 +325,9 @@ def bench(
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[
         Path | None,
-        typer.Option(help="With --compensation: contact sheet PNG of the first samples.", metavar="FILE.png"),
+        typer.Option(
+            help="With --compensation: contact sheet PNG of the first samples.", parser=output_path, metavar="FILE.png"
+        ),
     ] = None,
     track: Annotated[
         bool,
@@ -342,6 +348,7 @@ def bench(
             raise ProjregError(
                 f"--sheet {sheet}: a PNG contact sheet of compensations; give --compensation and a name ending in .png"
             )
+        lib.check_outputs(data, model or [], [("--json", json_out), ("--markdown", markdown), ("--sheet", sheet)])
         rows: list = []
         if baselines is None:
             names = list(lib.DEFAULT_BASELINES)
@@ -389,9 +396,13 @@ def predict(
     captured: Annotated[
         Path, typer.Option(help="Captured image, or a folder (same relative names).", metavar="IMG|DIR")
     ],
-    out: Annotated[Path, typer.Option(help="Flow EXR file, or output folder (folder mode).", metavar="FILE|DIR")],
+    out: Annotated[
+        Path,
+        typer.Option(help="Flow EXR file, or output folder (folder mode).", parser=output_path, metavar="FILE|DIR"),
+    ],
     viz: Annotated[
-        Path | None, typer.Option(help="Colour-wheel PNG file, or folder (folder mode).", metavar="FILE|DIR")
+        Path | None,
+        typer.Option(help="Colour-wheel PNG file, or folder (folder mode).", parser=output_path, metavar="FILE|DIR"),
     ] = None,
     model: Annotated[
         Path | None,
@@ -462,7 +473,7 @@ def compensate(
     flow: Annotated[
         Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).", metavar="FILE.exr")
     ],
-    out: Annotated[Path, typer.Option(help="Projector image to write (PNG).", metavar="FILE.png")],
+    out: Annotated[Path, typer.Option(help="Projector image to write (PNG).", parser=output_path, metavar="FILE.png")],
     fill: Annotated[int, typer.Option(help="Grey level of projector pixels without correspondence.")] = 0,
     photometric: Annotated[
         bool, typer.Option("--photometric", help="Also correct colour and light (needs --white and --black).")
@@ -480,9 +491,13 @@ def compensate(
                 "--photometric needs --white and --black: the camera's photos of a full-white and "
                 "a full-black projection"
             )
+        if not photometric and (white is not None or black is not None):
+            raise ProjregError("--white and --black calibrate the photometric correction; add --photometric")
         result = compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
     except ProjregError as e:
         raise _fail(e) from None
+    for line in result["warnings"]:
+        typer.echo(f"projreg: warning: {line}", err=True)
     h, w = result["size"]
     how = "geometric + photometric" if photometric else "geometric"
     typer.echo(

@@ -87,9 +87,12 @@ def parse_precision(text: str, device: torch.device) -> torch.dtype:
 class TorchNetwork:
     """A :class:`~projreg.model.net.SSJMFlow` in eval mode on ``device``, feature stages in ``dtype``."""
 
-    def __init__(self, model: SSJMFlow, device: torch.device, dtype: torch.dtype = torch.float32) -> None:
+    def __init__(
+        self, model: SSJMFlow, device: torch.device, dtype: torch.dtype = torch.float32, source: str = "the network"
+    ) -> None:
         self.model = model.to(device).eval().cast_features(dtype)
         self.device = device
+        self.source = source  # how errors name it: the checkpoint
 
     @torch.no_grad()
     def __call__(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
@@ -111,6 +114,7 @@ class OnnxNetwork:
             import onnxruntime as ort
         except ImportError:
             raise ProjregError(f"--backend onnxruntime needs the onnxruntime package: {EXTRA}") from None
+        self.source = f"--model {path}"
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads or torch.get_num_threads()
         options.log_severity_level = 3  # warnings about unused initialisers are not the user's concern
@@ -173,7 +177,8 @@ def open_network(
     if backend == "torch":
         if is_onnx:
             raise ProjregError(f"--model {model}: an ONNX graph; run it with --backend onnxruntime")
-        return TorchNetwork(load_model(resolve_checkpoint(model), dev), dev, dtype)
+        path = resolve_checkpoint(model)
+        return TorchNetwork(load_model(path, dev), dev, dtype, source=f"--model {path}")
     if not is_onnx:
         raise ProjregError(
             "--backend onnxruntime runs an exported graph: pass --model FILE.onnx (write it with "
@@ -187,6 +192,30 @@ def open_network(
     if not Path(model).is_file():
         raise ProjregError(f"--model {model}: no such file")
     return OnnxNetwork(Path(model), dev)
+
+
+def checked_flow(net: Network, out: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """A network's output ``(N, H, W, 2)`` for inputs of ``shape`` ``(N, H, W)``, refused when it is not
+    one (a foreign graph) or not finite (a broken graph or checkpoint, or an overflow in fp16): a flow
+    of NaN would otherwise pass as a registered answer.
+
+    Raises:
+        ProjregError: naming the model (``net.source``).
+    """
+    source = getattr(net, "source", "the network")
+    out = np.asarray(out)
+    if out.shape != (*shape, 2):
+        raise ProjregError(
+            f"{source}: gives an output of shape {list(out.shape)} for inputs of {list(shape)}, not a flow "
+            f"[{shape[0]}, {shape[1]}, {shape[2]}, 2]; pass a model written by `projreg train` or `projreg export`"
+        )
+    bad = ~np.isfinite(out)
+    if bad.any():
+        raise ProjregError(
+            f"{source}: the network's flow is not finite (NaN or Inf) on {bad.any(axis=-1).mean():.1%} of the "
+            "pixels; the weights are broken, or fp16 overflowed (try --precision fp32)"
+        )
+    return out.astype(np.float32, copy=False)
 
 
 def flows_resized(
@@ -215,7 +244,8 @@ def flows_resized(
     for members in by_size.values():
         for start in range(0, len(members), batch_size):
             chunk = members[start : start + batch_size]
-            out = net(np.stack([small[i][0] for i in chunk]), np.stack([small[i][1] for i in chunk]))  # [n, h, w, 2]
+            inputs = np.stack([small[i][0] for i in chunk]), np.stack([small[i][1] for i in chunk])
+            out = checked_flow(net, net(*inputs), inputs[0].shape[:3])  # [n, h, w, 2]
             for i, flow in zip(chunk, out, strict=True):
                 flows[i] = resize_flow(np.asarray(flow, np.float32), pairs[i][0].shape)
     return flows

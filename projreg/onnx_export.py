@@ -39,6 +39,24 @@ MIN_OPSET = 16  # grid_sample
 DEFAULT_OPSET = 18
 
 
+def max_opset() -> int:
+    """The newest opset the installed torch's exporter writes (23 for torch 2.13)."""
+    try:
+        from torch.onnx._constants import ONNX_MAX_OPSET
+    except ImportError:  # a torch that moved it: the default is known to work
+        return DEFAULT_OPSET
+    return int(ONNX_MAX_OPSET)
+
+
+def check_opset(opset: int) -> None:
+    """Refuse an opset the network cannot be written in (below ``MIN_OPSET``) or the exporter does not know."""
+    if not MIN_OPSET <= opset <= max_opset():
+        raise ProjregError(
+            f"--opset {opset}: the exporter writes opsets {MIN_OPSET}..{max_opset()} "
+            f"(the network's grid_sample needs >= {MIN_OPSET}); the default is {DEFAULT_OPSET}"
+        )
+
+
 class FlowGraph(nn.Module):
     """What the ONNX graph computes: the network's final flow only (``SSJMFlow(...)[-1]``)."""
 
@@ -77,7 +95,7 @@ def export_onnx(model: SSJMFlow, out: Path, *, opset: int = DEFAULT_OPSET, metad
     Args:
         model: the network; it is exported as :class:`FlowGraph` and checked with ``onnx.checker``.
         out: the ``.onnx`` file to write (parents created).
-        opset: ONNX opset, at least ``MIN_OPSET``.
+        opset: ONNX opset, ``MIN_OPSET`` to :func:`max_opset`.
         metadata: extra ``metadata_props`` (string values), e.g. the checkpoint it came from.
 
     Returns:
@@ -86,9 +104,8 @@ def export_onnx(model: SSJMFlow, out: Path, *, opset: int = DEFAULT_OPSET, metad
     Raises:
         ProjregError: opset too low, ``onnx`` (or ``onnxscript``) missing, the export or the checker failed.
     """
+    check_opset(opset)
     onnx = require_onnx()
-    if opset < MIN_OPSET:
-        raise ProjregError(f"--opset {opset}: the network's grid_sample needs opset >= {MIN_OPSET}")
     out = Path(out)
     if out.suffix.lower() != ".onnx":
         raise ProjregError(f"--onnx {out}: give a name ending in .onnx")
@@ -125,6 +142,7 @@ def export_onnx(model: SSJMFlow, out: Path, *, opset: int = DEFAULT_OPSET, metad
     }
     for key, value in props.items():
         proto.metadata_props.add(key=key, value=str(value))
+    _drop_stack_traces(proto)
     try:
         onnx.checker.check_model(proto, full_check=True)
     except Exception as e:
@@ -136,21 +154,30 @@ def export_onnx(model: SSJMFlow, out: Path, *, opset: int = DEFAULT_OPSET, metad
     return out
 
 
+def _drop_stack_traces(proto) -> None:
+    """Remove the exporter's per-node Python stack traces: they name the tracer's generated code by a
+    counter (``<eval_with_key>.39``), so two exports of one checkpoint would differ in bytes."""
+    for node in proto.graph.node:
+        kept = [p for p in node.metadata_props if not p.key.endswith("stack_trace")]
+        if len(kept) != len(node.metadata_props):
+            del node.metadata_props[:]
+            node.metadata_props.extend(kept)
+
+
 def export_checkpoint_onnx(checkpoint: Path | str | None, out: Path, *, opset: int = DEFAULT_OPSET) -> Path:
     """``projreg export --onnx``: a checkpoint's network as an ONNX graph (:func:`export_onnx`).
 
     Args:
         checkpoint: a ``projreg train``/``export`` checkpoint; None or ``reference``: the shipped model.
         out: the ``.onnx`` file; it must not be the checkpoint itself.
-        opset: ONNX opset (>= ``MIN_OPSET``).
+        opset: ONNX opset (:func:`check_opset`).
 
     Returns:
         ``out``; its metadata names the checkpoint and its SHA-256.
     """
     from .checkpoint import load_model, resolve_checkpoint
 
-    if opset < MIN_OPSET:
-        raise ProjregError(f"--opset {opset}: the network's grid_sample needs opset >= {MIN_OPSET}")
+    check_opset(opset)
     if Path(out).suffix.lower() != ".onnx":
         raise ProjregError(f"--onnx {out}: give a name ending in .onnx")
     require_onnx()

@@ -19,7 +19,6 @@ Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the pr
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from projsynth import ProjsynthError, flowio
 from projsynth.export import png_bytes
 from projsynth.flowio import encode_flow_exr, write_atomic_all
 from projsynth.flowviz import flow_picture, scale_of
+from projsynth.outputs import refuse_overwriting_inputs
 from projsynth.sources import list_images, load_image
 
 from . import ProjregError
@@ -73,24 +73,12 @@ def require_suffix(path: Path, suffix: str, option: str) -> None:
         )
 
 
-def refuse_overwriting_inputs(outputs: list[tuple[str, Path | None]], inputs: list[tuple[str, Path]]) -> None:
-    """Refuse an output that is one of the inputs: the same file (device and inode, so also through
-    a link or another spelling of its path), not just the same string. ``(option, path)`` pairs."""
-    existing = {}
-    for option, path in inputs:
-        try:
-            st = os.stat(path)
-        except OSError:
-            continue  # reading it will fail with its own message
-        existing[st.st_dev, st.st_ino] = (option, path)
-    for option, path in outputs:
-        try:
-            st = os.stat(path) if path is not None else None
-        except OSError:
-            continue  # not there yet, so no input
-        hit = existing.get((st.st_dev, st.st_ino)) if st is not None else None
-        if hit is not None:
-            raise ProjregError(f"{option} {path}: is the input {hit[0]} {hit[1]}; write the output to another file")
+def guard_outputs(outputs: list, inputs: list) -> None:
+    """:func:`projsynth.outputs.refuse_overwriting_inputs` as a :class:`ProjregError`."""
+    try:
+        refuse_overwriting_inputs(outputs, inputs)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from None
 
 
 def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
@@ -212,7 +200,7 @@ def predict(
         raise ProjregError("--track registers frame after frame; drop --batch-size")
     jobs = plan_jobs(projected, captured, out, viz)
     weights = model if backend == "onnxruntime" else resolve_checkpoint(model)
-    refuse_overwriting_inputs(
+    guard_outputs(
         [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
         [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
         + ([("--model", Path(weights))] if weights is not None else []),
@@ -234,7 +222,7 @@ def predict(
                 return Prediction(flow) if refiner is None else refiner.predict(a, b, flow)
 
             pred = register_any_size(register, img0, img1)
-            results.append(_write(job, pred, refiner is not None, max_flow))
+            results.append(_write(job, pred, refiner is not None, max_flow, camera=img1.shape[:2]))
             if progress:
                 progress(len(results), len(jobs))
     return results
@@ -253,25 +241,52 @@ def _track(
     def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
         return refiner.predict(img0, img1, flows_resized(net, [(img0, img1)], max_side)[0])
 
+    _require_one_size(jobs)
     tracker = Tracker(register, refiner)
     results = []
     for job in jobs:
-        pred = register_any_size(tracker, _load(job.projected), _load(job.captured))
-        results.append(_write(job, pred, True, max_flow, tracking=tracker.last))
+        img0, img1 = _load(job.projected), _load(job.captured)
+        pred = register_any_size(tracker, img0, img1)
+        results.append(_write(job, pred, True, max_flow, tracking=tracker.last, camera=img1.shape[:2]))
         if progress:
             progress(len(results), len(jobs))
     return results
 
 
-def _write(job: Job, pred: Prediction, refined: bool, max_flow: float | None, tracking: str = "") -> Predicted:
+def _require_one_size(jobs: list[Job]) -> None:
+    """Before any frame is registered (and its flow written): every frame of a sequence has the first
+    one's projected and captured sizes, and every file reads. Costs one more decode per frame."""
+    first: dict[str, tuple[Path, tuple[int, ...]]] = {}
+    for job in jobs:
+        for option, path in (("--projected", job.projected), ("--captured", job.captured)):
+            shape = _load(path).shape
+            ref = first.setdefault(option, (path, shape))
+            if shape != ref[1]:
+                raise ProjregError(
+                    f"--track: {path} is {shape[1]}x{shape[0]} px but {ref[0]}, the sequence's first frame, is "
+                    f"{ref[1][1]}x{ref[1][0]}; the frames of one sequence share one size (nothing was written)"
+                )
+
+
+def _write(
+    job: Job,
+    pred: Prediction,
+    refined: bool,
+    max_flow: float | None,
+    tracking: str = "",
+    camera: tuple[int, int] | None = None,
+) -> Predicted:
     """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
-    written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``)."""
+    written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``); ``camera``:
+    the captured image's ``(H, W)``, the frame the flow's positions are in (header ``camera_size``)."""
     valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
     attrs = {
         "registered": "yes" if pred.registered else "no",
         "claimed": f"{valid.mean():.4f}",
         "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)",
     }
+    if camera is not None:
+        attrs["camera_size"] = f"{camera[0]}x{camera[1]}"
     if pred.reason:
         attrs["reason"] = pred.reason
     if tracking:

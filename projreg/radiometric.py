@@ -34,6 +34,8 @@ FLOOR_PERCENTILES = (0, 25, 50, 75, 90, 95, 99)
 SCALE_PERCENTILES = (1, 5, 10, 25, 50)
 NOISE_LIN = 0.004  # about one camera grey level at mid-grey, in linear light (gamma 2.2)
 MIN_GAIN = 1e-3  # a pixel the projector cannot brighten gets no light
+SWAPPED_SHARE = 0.5  # white darker than black on more of the frame than this: refused (swapped photos)
+CLIPPED_SHARE = 0.05  # white photo saturated on more of the frame than this: a warning
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,7 @@ class Radiometry:
     offset: np.ndarray
     gain: np.ndarray
     gamma: float
+    clipped: float = 0.0  # share of camera pixels where the white photo saturates (gain underestimated)
 
 
 def to_linear(image: np.ndarray, gamma: float) -> np.ndarray:
@@ -64,8 +67,15 @@ def calibrate(white: np.ndarray, black: np.ndarray, gamma: float = 2.2, level: f
         )
     if not 0.5 < gamma < 4:
         raise ProjregError(f"--gamma: expected a display/camera gamma in (0.5, 4), got {gamma}")
+    darker = float(np.mean(white.astype(np.int16).sum(axis=2) < black.astype(np.int16).sum(axis=2)))
+    if darker > SWAPPED_SHARE:
+        raise ProjregError(
+            f"--white is darker than --black on {darker:.0%} of the frame: are the two photos swapped? "
+            "--white is the camera's photo of a full-white projection"
+        )
     offset = to_linear(black, gamma)
-    return Radiometry(offset, np.maximum(to_linear(white, gamma) - offset, 0) / np.float32(level**gamma), gamma)
+    gain = np.maximum(to_linear(white, gamma) - offset, 0) / np.float32(level**gamma)
+    return Radiometry(offset, gain, gamma, clipped=float(np.mean((white == 255).any(axis=2))))
 
 
 def solve(wanted: np.ndarray, model: Radiometry, region: np.ndarray | None = None) -> tuple[np.ndarray, float]:

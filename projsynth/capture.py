@@ -26,7 +26,8 @@ import numpy as np
 
 from . import ProjsynthError, __version__
 from .export import png_bytes
-from .flowio import encode_flow_exr, write_atomic_all
+from .flowio import encode_flow_exr, remove_stale_temporaries, write_atomic_all
+from .outputs import folder_files, refuse_overwriting_inputs
 from .photometric import BLENDS
 from .procedural import render_procedural
 from .render import alpha_field, camera_view, ground_truth, photograph
@@ -117,13 +118,21 @@ def capture(
     contents: list[Path] = (),
     background: Path | None = None,
     blend: str = "physical",
+    patterns_dir: Path | None = None,
 ) -> dict:
     """Photograph ``patterns`` and ``contents`` through one scene into ``out`` (see the module docstring).
+
+    ``patterns_dir``: the folder ``patterns`` was read from; ``out`` may not be it (nor hold any input).
 
     Returns:
         The ``capture.json`` record (scene parameters, valid share of the truth, files).
     """
     out = Path(out)
+    if not 0 <= seed < 2**64:  # as `gen`'s
+        raise ProjsynthError(f"--seed: must be in 0..{2**64 - 1}, got {seed}")
+    inputs = [("--content", Path(c)) for c in contents] + [("--background", background)]
+    inputs += folder_files("--patterns", Path(patterns_dir)) if patterns_dir is not None else []
+    refuse_overwriting_inputs([("--out", out)], inputs)
     camera_size = tuple(camera_size or patterns.size)
     bg = None if background is None else load_image(background)
     rig = make_rig(table, transform, seed, patterns.size, camera_size, blend, bg)
@@ -153,5 +162,8 @@ def capture(
         **rig.params,
     }
     files.append((out / CAPTURE_FILE, (json.dumps(record, indent=1) + "\n").encode()))
+    refuse_overwriting_inputs([("--out", f) for f, _ in files], inputs)
     write_atomic_all(files, make_parents=True)
+    for folder in {f.parent for f, _ in files}:
+        remove_stale_temporaries(folder, [f.name for f, _ in files if f.parent == folder])
     return record

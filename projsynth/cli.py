@@ -386,14 +386,23 @@ def patterns(
         ),
     ],
     size: Annotated[str, typer.Option(help="Projector frame HxW.", metavar="HxW")],
-    out: Annotated[Path, typer.Option(help="Folder for the PNGs (NN-<name>.png) and patterns.json.", metavar="DIR")],
-    grid: Annotated[str, typer.Option(help="dots: dot grid ROWSxCOLS.", metavar="ROWSxCOLS")] = "20x20",
-    period: Annotated[int, typer.Option(help="graycode: fringe period in projector px (multiple of 4).")] = 16,
-    shifts: Annotated[int, typer.Option(help="graycode: phase shifts per axis.")] = 8,
+    out: Annotated[
+        Path,
+        typer.Option(help="Folder for the PNGs (NN-<name>.png) and patterns.json.", parser=output_path, metavar="DIR"),
+    ],
+    grid: Annotated[
+        str | None, typer.Option(help="dots: dot grid ROWSxCOLS [default: 20x20].", metavar="ROWSxCOLS")
+    ] = None,
+    period: Annotated[
+        int | None,
+        typer.Option(help="graycode: fringe period in projector px, a multiple of 4 in 8..1024 [default: 16]."),
+    ] = None,
+    shifts: Annotated[int | None, typer.Option(help="graycode: phase shifts per axis, 3..64 [default: 8].")] = None,
 ) -> None:
     """Write a structured-light pattern set to project, in order (docs/real-rig.md)."""
     try:
-        files = write_patterns(make_set(kind, parse_size(size), parse_grid(grid), period, shifts), out)
+        pattern_set = make_set(kind, parse_size(size), None if grid is None else parse_grid(grid), period, shifts)
+        files = write_patterns(pattern_set, out)
     except ProjsynthError as e:
         raise _fail(e) from None
     typer.echo(f"{out}: {len(files) - 1} patterns and patterns.json", err=True)
@@ -404,7 +413,10 @@ def capture(
     patterns_dir: Annotated[
         Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
     ],
-    out: Annotated[Path, typer.Option(help="Folder for the photos, truth.exr and capture.json.", metavar="DIR")],
+    out: Annotated[
+        Path,
+        typer.Option(help="Folder for the photos, truth.exr and capture.json.", parser=output_path, metavar="DIR"),
+    ],
     transform: Annotated[
         int, typer.Option(help="Transform id of the scene (see `projsynth transforms`).", metavar="ID")
     ],
@@ -430,7 +442,7 @@ def capture(
         cam = None if camera_size is None else parse_size(camera_size, "--camera-size")
         scene = {"table": load_table(table), "transform": transform, "seed": seed, "camera_size": cam}
         pictures = {"contents": content or [], "background": background, "blend": blend}
-        record = capture_scene(read_patterns(patterns_dir), out, **scene, **pictures)
+        record = capture_scene(read_patterns(patterns_dir), out, **scene, **pictures, patterns_dir=patterns_dir)
     except ProjsynthError as e:
         raise _fail(e) from None
     photos, pictures = len(record["patterns"]["order"]), len(record["contents"])
@@ -460,7 +472,10 @@ def decode(
         Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).", metavar="DIR")
     ],
     out: Annotated[
-        Path, typer.Option(help="Folder for correspondence.exr (and the dataset with --pair).", metavar="DIR")
+        Path,
+        typer.Option(
+            help="Folder for correspondence.exr (and the dataset with --pair).", parser=output_path, metavar="DIR"
+        ),
     ],
     pair: Annotated[list[Any] | None, typer.Option(metavar="PROJECTED CAPTURED", help=PAIR_HELP)] = None,
 ) -> None:

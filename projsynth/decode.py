@@ -32,8 +32,9 @@ import numpy as np
 from . import ProjsynthError
 from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
-from .flowio import encode_flow_exr, write_atomic_all
+from .flowio import encode_flow_exr, remove_stale_temporaries, write_atomic_all
 from .invert import invert_map
+from .outputs import folder_files, refuse_overwriting_inputs
 from .sources import IMAGE_EXTENSIONS, load_gray
 from .structured import PatternSet, read_patterns
 
@@ -42,6 +43,7 @@ MIN_CONTRAST = 0.02  # white - black, of full scale
 MIN_MODULATION = 0.15  # fringe amplitude / (white - black)
 BIT_MARGIN_PX = 2.0  # projector px from a Gray bit's own stripe edge beyond which the bit must be clear
 MIN_BIT_CONTRAST = 0.2  # |pattern - inverse| / (white - black) of a clear bit
+MIN_DECODED = 0.01  # share of projector pixels (graycode) or dots (dots) below which a decode is refused
 
 
 @dataclass(frozen=True)
@@ -115,9 +117,14 @@ def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tup
     Returns:
         A one-line summary for the user.
     """
+    out = Path(out)
     patterns = read_patterns(patterns_dir)
+    inputs = folder_files("--patterns", Path(patterns_dir)) + folder_files("--captures", Path(captures))
+    inputs += [(option, Path(p)) for pair in pairs for option, p in zip(("--pair", "--pair"), pair, strict=True)]
+    refuse_overwriting_inputs([("--out", out)], inputs)
     photos, files = load_captures(patterns, captures)
     result = decode(patterns, photos)
+    _require_decoded(result, patterns, photos, captures)
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
     record = {
@@ -129,21 +136,49 @@ def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tup
         **result.stats,
         "valid_share": float(result.valid.mean()),
     }
+    # decode.json is the mark of a finished decode: gone while the others are rewritten, written last
+    try:
+        (out / DECODE_FILE).unlink(missing_ok=True)
+    except OSError as e:
+        raise ProjsynthError(f"--out {out / DECODE_FILE}: cannot replace it ({e.strerror or e})") from e
     write_atomic_all(
-        [
-            (out / CORRESPONDENCE_FILE, encode_flow_exr(result.flow, result.valid, "correspondence")),
-            (out / DECODE_FILE, (json.dumps(record, indent=1) + "\n").encode()),
-        ],
-        make_parents=True,
+        [(out / CORRESPONDENCE_FILE, encode_flow_exr(result.flow, result.valid, "correspondence"))], make_parents=True
     )
     if samples:
         write_captured_dataset(out, patterns, patterns_dir, files, samples, camera_size)
+        record["dataset_pairs"] = len(samples)
+    write_atomic_all([(out / DECODE_FILE, (json.dumps(record, indent=1) + "\n").encode())])
+    remove_stale_temporaries(out, [CORRESPONDENCE_FILE, DECODE_FILE])
     what = (
         f"{result.stats['dots_decoded']} of {result.stats['dots']} dots"
         if patterns.kind == "dots"
         else (f"{result.valid.mean():.1%} of projector pixels")
     )
     return f"{what} decoded into {CORRESPONDENCE_FILE}" + (f"; dataset of {len(samples)} pairs" if samples else "")
+
+
+def _require_decoded(result: Correspondence, patterns: PatternSet, photos: np.ndarray, captures: Path) -> None:
+    """Refuse a decode that found (almost) nothing: below ``MIN_DECODED`` of the projector's pixels
+    (``graycode``) or of its dots, naming the likely cause."""
+    if patterns.kind == "dots":
+        share = result.stats["dots_decoded"] / max(result.stats["dots"], 1)
+    else:
+        share = float(result.valid.mean())
+    if share >= MIN_DECODED:
+        return
+    on, off = ("white", "black") if patterns.kind == "graycode" else ("on", "off")
+    names = [n.split("-", 1)[1] for n in patterns.names]
+    contrast = float(np.median(photos[names.index(on)] - photos[names.index(off)]))
+    if contrast < MIN_CONTRAST:
+        cause = (
+            f"the photos of the {on} and {off} patterns barely differ (median {contrast:.1%} of full scale): "
+            "the projector was off or hidden, or the exposure far too short or too long"
+        )
+    else:
+        cause = "the photos are lit but do not decode: are they of these patterns, in this order, from one pose?"
+    raise ProjsynthError(
+        f"--captures {captures}: only {share:.1%} of the projector decoded (need >= {MIN_DECODED:.0%}); {cause}"
+    )
 
 
 def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:

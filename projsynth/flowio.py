@@ -14,6 +14,7 @@ import numpy as np
 import OpenEXR
 
 from . import ProjsynthError
+from .native import native_output_silenced
 
 EXR_CHANNELS = ("forward.u", "forward.v", "valid")
 FLO_MAGIC = 202021.25  # the bytes b"PIEH" read as a little-endian float32
@@ -53,9 +54,7 @@ def _as_flow(flow: np.ndarray, where: str) -> np.ndarray:
 def _as_valid(valid: np.ndarray, shape: tuple[int, ...], where: str) -> np.ndarray:
     valid = np.asarray(valid)
     if valid.dtype != np.bool_ or valid.shape != shape[:2]:
-        raise ProjsynthError(
-            f"{where}: valid must be a bool {shape[:2]} array, got {valid.dtype}{valid.shape}"
-        )
+        raise ProjsynthError(f"{where}: valid must be a bool {shape[:2]} array, got {valid.dtype}{valid.shape}")
     return valid
 
 
@@ -194,12 +193,22 @@ def write_atomic_all(files: list[tuple[Path, bytes]], make_parents: bool = False
             tmp.unlink(missing_ok=True)
 
 
+def remove_stale_temporaries(folder: Path, names: list[str]) -> None:
+    """Remove the temporaries ``.NAME.*.tmp`` that an interrupted :func:`write_atomic_all` of ``NAME``
+    in ``folder`` left behind. Only for a folder one command writes alone (not a job array's manifest:
+    another writer's temporary may be in flight there)."""
+    for name in names:
+        for tmp in Path(folder).glob(f".{name}.*.tmp"):
+            tmp.unlink(missing_ok=True)
+
+
 def read_flow_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     """Read an EXR flow file from disk; returns ``(flow, valid, header)`` as :func:`decode_flow_exr`."""
     path = Path(path)
     data = _read_bytes(path)  # its error already names the file
     try:
-        return decode_flow_exr(data)
+        with native_output_silenced():  # a damaged file: OpenEXR's own lines before ours
+            return decode_flow_exr(data)
     except ProjsynthError as e:
         raise ProjsynthError(f"{path}: {e}") from e
 
@@ -249,9 +258,7 @@ def read_flo(path: str | os.PathLike[str]) -> np.ndarray:
     return np.frombuffer(data, "<f4", offset=12).reshape(h, w, 2).astype(np.float32)
 
 
-def flow_to_color(
-    flow: np.ndarray, valid: np.ndarray | None = None, max_magnitude: float | None = None
-) -> np.ndarray:
+def flow_to_color(flow: np.ndarray, valid: np.ndarray | None = None, max_magnitude: float | None = None) -> np.ndarray:
     """Colour-code flow with the Baker et al. (Middlebury) 55-hue wheel.
 
     Hue is the direction (rightward flow is red, leftward cyan-blue), saturation is

@@ -6,7 +6,7 @@ relative path, and loads an image as ``H x W x 3`` uint8 RGB fitted to the datas
 Skipping unreadable files: ``FolderSource.load`` raises ``ProjsynthError`` whose message starts with
 the file's path. A caller that skips bad files instead of stopping catches it, counts it and logs the
 message, e.g. ``try: img = src.load(item, size) except ProjsynthError as err: skipped.append(str(err))``.
-Note that OpenCV itself may write ``[ WARN ]`` lines to stderr while decoding a broken file.
+OpenCV's decoders' own lines about a broken file are silenced (:mod:`projsynth.native`).
 """
 
 import hashlib
@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from . import ProjsynthError
+from .native import native_output_silenced
 from .procedural import KINDS, THEMES
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
@@ -125,7 +126,8 @@ def read_image(path: Path) -> np.ndarray:
     if data.size == 0:
         raise ProjsynthError(f"{path}: cannot read image (empty file); remove it or fix it")
     try:
-        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        with native_output_silenced():  # libpng/libtiff's own lines about a damaged file
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     except cv2.error as err:  # some corrupt headers raise instead of returning None
         raise ProjsynthError(f"{path}: cannot read image (decoder error); remove it or fix it") from err
     if image is None or image.size == 0:

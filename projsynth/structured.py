@@ -28,13 +28,17 @@ from pathlib import Path
 import numpy as np
 
 from . import ProjsynthError
+from .dataset import MAX_SIZE, MIN_SIZE
 from .export import png_bytes
-from .flowio import write_atomic_all
+from .flowio import remove_stale_temporaries, write_atomic_all
 
 PATTERN_FORMAT = 1
 PATTERNS_FILE = "patterns.json"
 KINDS = ("graycode", "dots")
 DEFAULT_PERIOD, DEFAULT_SHIFTS, DEFAULT_GRID = 16, 8, (20, 20)
+MIN_PERIOD, MAX_PERIOD = 8, 1024  # fringe period, projector px
+MIN_SHIFTS, MAX_SHIFTS = 3, 64  # phase shifts per axis (each one photo)
+MIN_GRID, MAX_GRID = 2, 256  # dots per side
 
 
 @dataclass(frozen=True)
@@ -61,12 +65,19 @@ class PatternSet:
         return graycode_images(self) if self.kind == "graycode" else dot_images(self)
 
 
-def graycode_set(size: tuple[int, int], period: int = DEFAULT_PERIOD, shifts: int = DEFAULT_SHIFTS) -> PatternSet:
-    """The dense sub-pixel set for an ``H x W`` projector (see the module docstring)."""
-    if period < 8 or period % 4:
-        raise ProjsynthError(f"--period: must be a multiple of 4 and >= 8, got {period}")
-    if shifts < 3:
-        raise ProjsynthError(f"--shifts: need at least 3 phase shifts, got {shifts}")
+def graycode_set(
+    size: tuple[int, int], period: int = DEFAULT_PERIOD, shifts: int = DEFAULT_SHIFTS, source: str | None = None
+) -> PatternSet:
+    """The dense sub-pixel set for an ``H x W`` projector (see the module docstring).
+
+    ``source``: where the values come from, for error messages (None: the command line's options).
+    """
+    if period < MIN_PERIOD or period > MAX_PERIOD or period % 4:
+        raise ProjsynthError(
+            f"{_name('period', source)}: must be a multiple of 4 in {MIN_PERIOD}..{MAX_PERIOD}, got {period}"
+        )
+    if not MIN_SHIFTS <= shifts <= MAX_SHIFTS:
+        raise ProjsynthError(f"{_name('shifts', source)}: must be in {MIN_SHIFTS}..{MAX_SHIFTS}, got {shifts}")
     h, w = size
     stripe = period // 4
     bits = {"x": _bits(math.ceil(w / stripe)), "y": _bits(math.ceil(h / stripe))}
@@ -80,18 +91,18 @@ def graycode_set(size: tuple[int, int], period: int = DEFAULT_PERIOD, shifts: in
     return PatternSet("graycode", (h, w), _numbered(names), params)
 
 
-def dot_set(size: tuple[int, int], grid: tuple[int, int] = DEFAULT_GRID) -> PatternSet:
+def dot_set(size: tuple[int, int], grid: tuple[int, int] = DEFAULT_GRID, source: str | None = None) -> PatternSet:
     """The paper's dot protocol: ``grid`` ``(gy, gx)`` dots, all-on, all-off and one image per index bit."""
     h, w = size
     gy, gx = grid
-    if gy < 2 or gx < 2:
-        raise ProjsynthError(f"--grid: need at least 2 x 2 dots, got {gy}x{gx}")
+    if not (MIN_GRID <= gy <= MAX_GRID and MIN_GRID <= gx <= MAX_GRID):
+        raise ProjsynthError(f"{_name('grid', source)}: {gy}x{gx} is outside {MIN_GRID}..{MAX_GRID} per side")
     spacing = min((w - 1) / gx, (h - 1) / gy)
     radius = float(math.floor(0.18 * spacing * 2) / 2)
     if radius < 1.5:
         raise ProjsynthError(
-            f"--grid {gy}x{gx}: dots {spacing:.1f} px apart are too close for {h}x{w}; "
-            "use fewer dots or a larger --size"
+            f"{_name('grid', source)} {gy}x{gx}: dots {spacing:.1f} px apart are too close for {h}x{w}; "
+            "use fewer dots or a larger size"
         )
     margin_x, margin_y = (w - 1) / gx / 2 + radius, (h - 1) / gy / 2 + radius
     xs = np.rint(np.linspace(margin_x, w - 1 - margin_x, gx)).astype(int)
@@ -107,6 +118,11 @@ def dot_set(size: tuple[int, int], grid: tuple[int, int] = DEFAULT_GRID) -> Patt
         "centres_y": ys.tolist(),
     }
     return PatternSet("dots", (h, w), _numbered(names), params)
+
+
+def _name(key: str, source: str | None) -> str:
+    """How an error names a setting: the option (``--period``) or the file's key (``F: "period"``)."""
+    return f"--{key}" if source is None else f'{source}: "{key}"'
 
 
 def dot_centres(patterns: PatternSet) -> np.ndarray:
@@ -158,15 +174,20 @@ def dot_images(patterns: PatternSet) -> list[np.ndarray]:
 def make_set(
     kind: str,
     size: tuple[int, int],
-    grid: tuple[int, int] = DEFAULT_GRID,
-    period: int = DEFAULT_PERIOD,
-    shifts: int = DEFAULT_SHIFTS,
+    grid: tuple[int, int] | None = None,
+    period: int | None = None,
+    shifts: int | None = None,
 ) -> PatternSet:
-    """A pattern set by kind name (``KINDS``)."""
+    """A pattern set by kind name (``KINDS``); a setting of the other kind is refused, not ignored."""
     if kind == "graycode":
-        return graycode_set(size, period, shifts)
+        if grid is not None:
+            raise ProjsynthError("--grid: sets the dots of --kind dots; drop it for graycode")
+        return graycode_set(size, period or DEFAULT_PERIOD, DEFAULT_SHIFTS if shifts is None else shifts)
     if kind == "dots":
-        return dot_set(size, grid)
+        for option, value in (("--period", period), ("--shifts", shifts)):
+            if value is not None:
+                raise ProjsynthError(f"{option}: sets the fringes of --kind graycode; drop it for dots")
+        return dot_set(size, grid or DEFAULT_GRID)
     raise ProjsynthError(f"--kind: {kind!r} is not one of {', '.join(KINDS)}")
 
 
@@ -177,32 +198,57 @@ def write_patterns(patterns: PatternSet, out: Path) -> list[Path]:
     files = [(out / f"{name}.png", png_bytes(out / name, img)) for name, img in images]
     files.append((out / PATTERNS_FILE, (json.dumps(patterns.describe(), indent=1) + "\n").encode()))
     write_atomic_all(files, make_parents=True)
+    remove_stale_temporaries(out, [f.name for f, _ in files])
     return [f for f, _ in files]
 
 
 def read_patterns(folder: Path) -> PatternSet:
-    """The set described by ``folder/patterns.json`` (the PNGs are not needed to decode)."""
+    """The set described by ``folder/patterns.json`` (the PNGs are not needed to decode).
+
+    Raises:
+        ProjsynthError: naming ``patterns.json``: missing, unreadable, of another kind or version, a
+            value of the wrong type or outside the bounds ``projsynth patterns`` accepts, or edited.
+    """
     path = Path(folder) / PATTERNS_FILE
+    again = "write it again with `projsynth patterns`"
     try:
         d = json.loads(path.read_text())
         if d["format_version"] != PATTERN_FORMAT or d["kind"] not in KINDS:
             raise ValueError(f"format {d['format_version']}, kind {d['kind']!r}")
-        size = (int(d["size"][0]), int(d["size"][1]))
+        size = _ints(d["size"], "size")
         names = tuple(str(n).removesuffix(".png") for n in d["order"])
         params = dict(d["parameters"])
     except FileNotFoundError:
         raise ProjsynthError(f"{path}: missing; --patterns must be a folder written by `projsynth patterns`") from None
     except (OSError, ValueError, KeyError, TypeError, IndexError) as e:
-        raise ProjsynthError(f"{path}: not a pattern description ({e}); run `projsynth patterns` again") from e
+        raise ProjsynthError(f"{path}: not a pattern description ({e}); {again}") from None
+    if not all(MIN_SIZE <= v <= MAX_SIZE for v in size):
+        raise ProjsynthError(f'{path}: "size" {size[0]}x{size[1]} is outside {MIN_SIZE}..{MAX_SIZE} per side; {again}')
+    try:
+        if d["kind"] == "graycode":
+            expected = graycode_set(
+                size, _int(params.get("period"), "period"), _int(params.get("shifts"), "shifts"), source=str(path)
+            )
+        else:
+            expected = dot_set(size, _ints(params.get("grid"), "grid"), source=str(path))
+    except ValueError as e:
+        raise ProjsynthError(f"{path}: {e}; {again}") from None
     patterns = PatternSet(d["kind"], size, names, params)
-    grid = tuple(params.get("grid", DEFAULT_GRID))
-    period, shifts = params.get("period", DEFAULT_PERIOD), params.get("shifts", DEFAULT_SHIFTS)
-    expected = make_set(patterns.kind, size, grid, period, shifts)
     if expected.describe() != patterns.describe():
-        raise ProjsynthError(
-            f"{path}: edited or from another version of projsynth; write it again with `projsynth patterns`"
-        )
+        raise ProjsynthError(f"{path}: edited or from another version of projsynth; {again}")
     return patterns
+
+
+def _int(value: object, key: str) -> int:
+    if type(value) is not int:  # not a bool, a float or a string
+        raise ValueError(f'"{key}" must be an integer, got {json.dumps(value)}')
+    return value
+
+
+def _ints(value: object, key: str) -> tuple[int, int]:
+    if not isinstance(value, list) or len(value) != 2:
+        raise ValueError(f'"{key}" must be a list of two integers, got {json.dumps(value)}')
+    return _int(value[0], key), _int(value[1], key)
 
 
 def parse_grid(text: str) -> tuple[int, int]:
@@ -211,8 +257,8 @@ def parse_grid(text: str) -> tuple[int, int]:
         gy, gx = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise ProjsynthError(f"--grid: expected ROWSxCOLS such as 20x20, got {text!r}") from None
-    if not (2 <= gy <= 256 and 2 <= gx <= 256):
-        raise ProjsynthError(f"--grid: {gy}x{gx} is outside 2..256 per side")
+    if not (MIN_GRID <= gy <= MAX_GRID and MIN_GRID <= gx <= MAX_GRID):
+        raise ProjsynthError(f"--grid: {gy}x{gx} is outside {MIN_GRID}..{MAX_GRID} per side")
     return gy, gx
 
 

@@ -79,6 +79,15 @@ def test_the_graph_is_checked_named_and_dynamic(exported):
 
 
 @pytest.mark.slow
+def test_two_exports_of_one_checkpoint_are_the_same_bytes(exported, tmp_path):
+    ckpt, graph = exported
+    again = tmp_path / "again.onnx"
+    result = _cli("export", "--checkpoint", ckpt, "--onnx", again)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    assert again.read_bytes() == graph.read_bytes()  # before: per-node stack traces named the tracer's counter
+
+
+@pytest.mark.slow
 def test_onnxruntime_matches_pytorch_at_two_sizes_and_in_batches(exported, pair):
     ckpt, graph = exported
     torch_net = TorchNetwork(SSJMFlow(**TINY), CPU)
@@ -114,6 +123,7 @@ def test_bad_export_options_are_one_line_errors(tiny_ckpt, tmp_path, one_line_er
     one_line_error(
         _cli("export", "--checkpoint", tiny_ckpt, "--onnx", tmp_path / "m.onnx", "--opset", "15"), "--opset 15", "16"
     )
+    one_line_error(_cli("export", "--checkpoint", tiny_ckpt, "--onnx", tmp_path / "m.onnx", "--opset", "99"), "..23")
     one_line_error(_cli("export", "--checkpoint", tiny_ckpt, "--onnx", tmp_path / "m.pt"), "--onnx", ".onnx")
     one_line_error(_cli("export", "--checkpoint", tiny_ckpt), "--out", "--onnx")
     one_line_error(
