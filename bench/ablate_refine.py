@@ -15,19 +15,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from projreg.baselines import homography_flow, make_baseline, to_gray
+from projreg.baselines import make_baseline
 from projreg.checkpoint import load_model, resolve_checkpoint
-from projreg.evaluate import predict_flow, sample_indices
-from projreg.metrics import EPEAccumulator
-from projreg.refine import (
-    GeometricRefiner,
-    RefineConfig,
-    compose,
-    fit_homography,
-    fit_step,
-    normalize_contrast,
-    texture_weight,
-)
+from projreg.evaluate import predict_flow
+from projreg.homography import fit_homography, fit_step, homography_flow
+from projreg.imageops import normalize_contrast, texture_weight, to_gray
+from projreg.metrics import EPEAccumulator, sample_indices
+from projreg.refine import GeometricRefiner
+from projreg.refine_config import RefineConfig
+from projreg.warp import compose
 from projsynth.shards import ShardReader
 
 ROWS = (

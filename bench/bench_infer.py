@@ -33,11 +33,11 @@ import numpy as np
 import torch
 
 from projreg.checkpoint import load_model, reference_checkpoint
-from projreg.evaluate import sample_indices
 from projreg.infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
-from projreg.metrics import EPEAccumulator
+from projreg.metrics import EPEAccumulator, sample_indices
 from projreg.model.net import build_model
-from projreg.refine import FAST_REFINE, GeometricRefiner, RefineConfig
+from projreg.refine import GeometricRefiner
+from projreg.refine_config import FAST_REFINE, RefineConfig
 from projsynth.dataset import parse_size
 from projsynth.shards import ShardReader
 

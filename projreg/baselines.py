@@ -33,7 +33,11 @@ import cv2
 import numpy as np
 
 from . import ProjregError
-from .confidence import Prediction
+from .homography import SiftHomography, homography_flow
+from .imageops import to_gray
+from .prediction import Prediction
+from .refine import GeometricRefiner
+from .refine_config import RefineConfig
 
 
 class Baseline(Protocol):
@@ -42,12 +46,6 @@ class Baseline(Protocol):
     name: str
 
     def predict(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray | Prediction: ...
-
-
-def to_gray(image: np.ndarray, equalize: bool = False) -> np.ndarray:
-    """The shared preprocessing: uint8 RGB ``(H, W, 3)`` -> uint8 gray ``(H, W)``, optionally equalised."""
-    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    return cv2.equalizeHist(gray) if equalize else gray
 
 
 class _OpenCVBaseline:
@@ -107,70 +105,25 @@ class Farneback(_OpenCVBaseline):
 
 
 class SiftRansac(_OpenCVBaseline):
-    """SIFT + ratio test + RANSAC homography, densified as ``H(p) - p``.
+    """SIFT + ratio test + RANSAC homography (:class:`~projreg.homography.SiftHomography`), densified as
+    ``H(p) - p``.
 
     After each ``predict``, ``last_status`` is ``"ok"``, ``"too-few-matches"``, ``"no-homography"`` or
     ``"degenerate"`` (the flow is zero unless ``"ok"``) and ``last_inliers`` the RANSAC inlier count.
     """
 
     name = "sift-ransac"
-    RATIO = 0.75
-    RANSAC_THRESHOLD = 3.0
 
     def __init__(self, equalize: bool = False) -> None:
         super().__init__(equalize)
-        self._sift = cv2.SIFT_create()
-        self._matcher = cv2.BFMatcher(cv2.NORM_L2)
+        self._estimator = SiftHomography()
         self.last_status = "not-run"
         self.last_inliers = 0
 
     def _flow(self, gray0: np.ndarray, gray1: np.ndarray) -> np.ndarray:
         h, w = gray0.shape
-        zero = np.zeros((h, w, 2), np.float32)
-        self.last_inliers = 0
-        kp0, des0 = self._sift.detectAndCompute(gray0, None)
-        kp1, des1 = self._sift.detectAndCompute(gray1, None)
-        good = []
-        if des0 is not None and des1 is not None and len(kp1) >= 2:
-            for pair in self._matcher.knnMatch(des0, des1, k=2):
-                if len(pair) == 2 and pair[0].distance < self.RATIO * pair[1].distance:
-                    good.append(pair[0])
-        if len(good) < 4:
-            self.last_status = "too-few-matches"
-            return zero
-        src = np.float32([kp0[m.queryIdx].pt for m in good])  # [N, 2] projected
-        dst = np.float32([kp1[m.trainIdx].pt for m in good])  # [N, 2] captured
-        cv2.setRNGSeed(0)
-        H, inliers = cv2.findHomography(src, dst, cv2.RANSAC, self.RANSAC_THRESHOLD)
-        if H is None:
-            self.last_status = "no-homography"
-            return zero
-        self.last_inliers = int(inliers.sum())
-        if not proper_homography(H, h, w):
-            self.last_status = "degenerate"
-            return zero
-        self.last_status = "ok"
-        return homography_flow(H, h, w)
-
-
-def proper_homography(H: np.ndarray, height: int, width: int) -> bool:
-    """Whether ``H`` keeps the whole ``height x width`` frame on one side of the line at infinity."""
-    # The projective denominator is affine in (x, y): its sign over the frame is fixed by the corners.
-    corners = np.array([[0, 0, 1], [width - 1, 0, 1], [0, height - 1, 1], [width - 1, height - 1, 1]], np.float64)
-    den = corners @ np.asarray(H, np.float64)[2]
-    return bool(np.all(den > 1e-8) or np.all(den < -1e-8))
-
-
-def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Dense flow ``H(p) - p`` on a ``height x width`` grid, ``H`` mapping projected to captured pixels.
-
-    Returns:
-        float32 ``(height, width, 2)``, forward, projected -> captured, pixels.
-    """
-    y, x = np.mgrid[0:height, 0:width].astype(np.float64)  # [H, W] each
-    q = np.stack([x, y, np.ones_like(x)], axis=-1) @ np.asarray(H, np.float64).T  # [H, W, 3]
-    flow = q[..., :2] / q[..., 2:] - np.stack([x, y], axis=-1)  # [H, W, 2]
-    return flow.astype(np.float32)
+        H, self.last_status, self.last_inliers = self._estimator(gray0, gray1)
+        return np.zeros((h, w, 2), np.float32) if H is None else homography_flow(H, h, w)
 
 
 class RefineOnly:
@@ -179,8 +132,6 @@ class RefineOnly:
     name = "refine-only"
 
     def __init__(self, equalize: bool = False) -> None:
-        from .refine import GeometricRefiner, RefineConfig  # refine builds on this module's helpers
-
         self._sift = SiftRansac(equalize)
         self._refiner = GeometricRefiner(RefineConfig(sift_pass=False))  # its SIFT start comes from here
 

@@ -11,23 +11,17 @@ from typing import Annotated, NoReturn
 
 import typer
 
-from projsynth.cli import PLAIN_HELP, Bar, Command, MaxFlow, is_rank0, output_path
+from projsynth.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
 from projsynth.cores import available_cores
 
 from . import ProjregError
 
 app = typer.Typer(**PLAIN_HELP, help="Train, benchmark and apply the SSJM projector-camera registration network.")
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
 
 
 @app.callback()
 def _root() -> None:
     """Train, benchmark and apply the SSJM projector-camera registration network."""
-
-
-def _fail(e: Exception) -> typer.Exit:
-    typer.echo(f"projreg: error: {e}", err=True)
-    return typer.Exit(2)
 
 
 def _torch_threads() -> None:
@@ -124,7 +118,8 @@ def train(
     quiet: Quiet = False,
 ) -> None:
     """Train the registration network on projsynth shards."""
-    from .train import TrainConfig, launched_by_torchrun
+    from .distributed import launched_by_torchrun
+    from .train import TrainConfig
     from .train import train as run_training
 
     torchrun = launched_by_torchrun()
@@ -164,7 +159,7 @@ def train(
 
             summary = run_training(cfg, resume=resume, progress=progress, val_progress=val_bar)
     except ProjregError as e:
-        failure = _fail(e)
+        failure = fail("projreg", e)
         if torchrun:
             _end_torchrun_worker(failure.exit_code)
         raise failure from None
@@ -263,7 +258,7 @@ def export(
             raise ProjregError("--out needs --checkpoint: the `projreg train` checkpoint to strip")
         slim = export_checkpoint(checkpoint, out)
     except ProjregError as e:
-        raise _fail(e) from None
+        raise fail("projreg", e) from None
     typer.echo(f"{out}: step {slim.get('step')}, {out.stat().st_size / 2**20:.2f} MiB", err=True)
 
 
@@ -340,10 +335,12 @@ def bench(
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
     from . import bench as lib
+    from . import report
     from .baselines import parse_baselines
+    from .bench_methods import DEFAULT_BASELINES
 
     try:
-        thresholds = [lib.parse_threshold(spec) for spec in fail_above or []]
+        thresholds = [report.parse_threshold(spec) for spec in fail_above or []]
         if sheet is not None and (not compensation or sheet.suffix.lower() != ".png"):
             raise ProjregError(
                 f"--sheet {sheet}: a PNG contact sheet of compensations; give --compensation and a name ending in .png"
@@ -351,7 +348,7 @@ def bench(
         lib.check_outputs(data, model or [], [("--json", json_out), ("--markdown", markdown), ("--sheet", sheet)])
         rows: list = []
         if baselines is None:
-            names = list(lib.DEFAULT_BASELINES)
+            names = list(DEFAULT_BASELINES)
         else:
             names = [] if baselines.strip().lower() == "none" else parse_baselines(baselines)
         _torch_threads()
@@ -374,14 +371,14 @@ def bench(
                 track=track,
                 batch_size=batch_size,
             )
-        lib.write_outputs(
+        report.write_outputs(
             report, json_path=json_out, markdown_path=markdown, sheet=None if sheet is None else (sheet, rows)
         )  # all or nothing
-        violations = lib.check_thresholds(report, thresholds)
+        violations = report.check_thresholds(report, thresholds)
     except ProjregError as e:
-        raise _fail(e) from None
+        raise fail("projreg", e) from None
     if markdown is None:
-        typer.echo(lib.compact_table(report))
+        typer.echo(report.compact_table(report))
     if not model and report["reference_model"] is None:
         typer.echo("projreg: no shipped reference model yet; benchmarked the baselines only", err=True)
     for line in violations:
@@ -455,7 +452,7 @@ def predict(
                 track=track,
             )
     except ProjregError as e:
-        raise _fail(e) from None
+        raise fail("projreg", e) from None
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
         if not r.registered:
             typer.echo(
@@ -495,7 +492,7 @@ def compensate(
             raise ProjregError("--white and --black calibrate the photometric correction; add --photometric")
         result = compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
     except ProjregError as e:
-        raise _fail(e) from None
+        raise fail("projreg", e) from None
     for line in result["warnings"]:
         typer.echo(f"projreg: warning: {line}", err=True)
     h, w = result["size"]
@@ -509,7 +506,7 @@ def compensate(
 
 def main() -> None:
     """The ``projreg`` console command (usage errors as one line, as in ``projsynth``)."""
-    from projsynth.cli import run_console
+    from projsynth.console import run_console
 
     run_console(app, "projreg")
 

@@ -16,10 +16,10 @@ import numpy as np
 
 from projsynth import ProjsynthError
 from projsynth.flowio import read_flow_exr
-from projsynth.sources import load_image
+from projsynth.images import load_image
 
 from . import ProjregError
-from .predict import guard_outputs, require_suffix, write_png
+from .outputs import guard_outputs, require_suffix, write_png
 from .radiometric import CLIPPED_SHARE, calibrate, solve
 
 

@@ -7,37 +7,10 @@ evidence to register the pair at all (e.g. textureless content): its flow is the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
-CONFIDENT = 0.5  # a pixel is claimed (``valid`` in predict's EXR) when its confidence is at least this
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """A flow with the pixels its method vouches for; see the module docstring."""
-
-    flow: np.ndarray
-    claimed: np.ndarray | None = None
-    registered: bool = True
-    reason: str = ""
-
-
-def as_prediction(out: np.ndarray | Prediction) -> Prediction:
-    """A method's output as a :class:`Prediction` (a bare flow claims every pixel)."""
-    return out if isinstance(out, Prediction) else Prediction(out)
-
-
-def ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """0 at or below ``lo``, 1 at or above ``hi``, linear between (``lo > hi`` decreases instead).
-
-    Example:
-        >>> ramp(np.array([0.0, 0.5, 1.0, 2.0]), 0.0, 1.0).tolist()
-        [0.0, 0.5, 1.0, 1.0]
-    """
-    return np.clip((np.asarray(x, np.float32) - lo) / (hi - lo), 0.0, 1.0)
+from .imageops import ramp
 
 
 def pixel_confidence(

@@ -7,23 +7,8 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from . import ProjregError
 from .data import ShardDataset
-from .metrics import EPEAccumulator
-
-
-def sample_indices(n: int, limit: int | None) -> list[int]:
-    """All of ``range(n)``, or ``limit`` indices spread evenly over it (first and last included).
-
-    Example:
-        >>> sample_indices(16, 4)
-        [0, 5, 10, 15]
-    """
-    if limit is not None and limit < 1:
-        raise ProjregError(f"--limit must be >= 1, got {limit}")
-    if limit is None or limit >= n:
-        return list(range(n))
-    return [int(i) for i in np.linspace(0, n - 1, limit).astype(int)]
+from .metrics import EPEAccumulator, sample_indices
 
 
 @torch.no_grad()

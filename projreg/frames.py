@@ -30,7 +30,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from .confidence import Prediction
+from .prediction import Prediction
 
 Register = Callable[[np.ndarray, np.ndarray], "np.ndarray | Prediction"]
 

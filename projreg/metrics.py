@@ -178,3 +178,17 @@ def _check_flow(name: str, flow: np.ndarray) -> None:
     if not isinstance(flow, np.ndarray) or flow.ndim != 3 or flow.shape[2] != 2:
         shape = getattr(flow, "shape", type(flow).__name__)
         raise ProjregError(f"{name} must be a flow array of shape (H, W, 2), got {shape}")
+
+
+def sample_indices(n: int, limit: int | None) -> list[int]:
+    """All of ``range(n)``, or ``limit`` indices spread evenly over it (first and last included).
+
+    Example:
+        >>> sample_indices(16, 4)
+        [0, 5, 10, 15]
+    """
+    if limit is not None and limit < 1:
+        raise ProjregError(f"--limit must be >= 1, got {limit}")
+    if limit is None or limit >= n:
+        return list(range(n))
+    return [int(i) for i in np.linspace(0, n - 1, limit).astype(int)]

@@ -27,8 +27,7 @@ import torch
 from torch import nn
 
 from projsynth import ProjsynthError
-from projsynth.flowio import write_atomic_all
-from projsynth.shards import file_sha256
+from projsynth.files import file_sha256, write_atomic_all
 
 from . import ProjregError, __version__
 from .model.net import SSJMFlow

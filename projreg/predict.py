@@ -25,19 +25,20 @@ from pathlib import Path
 
 import numpy as np
 
-from projsynth import ProjsynthError, flowio
-from projsynth.export import png_bytes
-from projsynth.flowio import encode_flow_exr, write_atomic_all
+from projsynth import ProjsynthError
+from projsynth.files import write_atomic_all
+from projsynth.flowio import encode_flow_exr
 from projsynth.flowviz import flow_picture, scale_of
-from projsynth.outputs import refuse_overwriting_inputs
-from projsynth.sources import list_images, load_image
+from projsynth.images import list_images, load_image, png_bytes
 
 from . import ProjregError
 from .checkpoint import resolve_checkpoint
-from .confidence import CONFIDENT, Prediction
 from .frames import register_any_size, resize_to
 from .infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized, open_network
-from .refine import FAST_REFINE, GeometricRefiner
+from .outputs import guard_outputs, require_suffix
+from .prediction import CONFIDENT, Prediction
+from .refine import GeometricRefiner
+from .refine_config import FAST_REFINE
 from .track import Tracker
 
 
@@ -63,22 +64,6 @@ class Job:
     out: Path
     viz: Path | None
     sample_id: str
-
-
-def require_suffix(path: Path, suffix: str, option: str) -> None:
-    """Refuse an output name whose extension promises another format than the one written."""
-    if path.suffix.lower() != suffix:
-        raise ProjregError(
-            f"{option} {path}: this file is written as {suffix[1:].upper()}; give a name ending in {suffix}"
-        )
-
-
-def guard_outputs(outputs: list, inputs: list) -> None:
-    """:func:`projsynth.outputs.refuse_overwriting_inputs` as a :class:`ProjregError`."""
-    try:
-        refuse_overwriting_inputs(outputs, inputs)
-    except ProjsynthError as e:
-        raise ProjregError(str(e)) from None
 
 
 def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
@@ -308,9 +293,3 @@ def _load(path: Path) -> np.ndarray:
         raise ProjregError(str(e)) from e
 
 
-def write_png(path: Path, image: np.ndarray) -> None:
-    """Atomic PNG write (temporary file, fsync, rename); errors become one ProjregError naming the file."""
-    try:
-        flowio.write_atomic(Path(path), png_bytes(path, image))
-    except ProjsynthError as e:
-        raise ProjregError(str(e)) from e

@@ -29,8 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .confidence import Prediction, as_prediction
-from .refine import GeometricRefiner, compose, warp_back
+from .prediction import Prediction, as_prediction
+from .refine import GeometricRefiner
+from .warp import compose, warp_back
 
 STEPS = ("full", "tracked", "lost")  # how a frame was registered: first frame, from the previous, re-registered
 

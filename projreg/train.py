@@ -18,7 +18,6 @@ import csv
 import itertools
 import json
 import math
-import os
 import platform
 import random
 import signal
@@ -35,11 +34,18 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader
 
 from projsynth import ProjsynthError
-from projsynth.flowio import write_atomic
+from projsynth.files import write_atomic
 
 from . import ProjregError, __version__
 from .checkpoint import atomic_save, load_checkpoint, require_model, resolve_checkpoint
 from .data import Augment, ShardDataset, StreamSampler
+from .distributed import (
+    checked_collective_tensor,
+    cuda_or_none,
+    launched_by_torchrun,
+    process_device,
+    record_ddp_agreement,
+)
 from .evaluate import evaluate
 from .loss import sequence_loss
 from .model.net import SSJMFlow, build_model, count_parameters
@@ -324,7 +330,7 @@ def _train(
     distributed = launched_by_torchrun()
     device = process_device()
     if distributed:  # NCCL wants the rank's GPU bound before the group exists (and every tensor on it)
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo", device_id=_cuda_or_none(device))
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo", device_id=cuda_or_none(device))
     rank, world = (dist.get_rank(), dist.get_world_size()) if distributed else (0, 1)
     # the data first: a bad --data or --val leaves --out untouched
     train_ds = ShardDataset([Path(p) for p in cfg.data], Augment(crop=cfg.crop))
@@ -365,7 +371,7 @@ def _train(
         "checkpoint": str(run.last_path),
     }
     if distributed:
-        _record_ddp_agreement(run.model, out, rank, world, device)
+        record_ddp_agreement(run.model, out, rank, world, device)
         dist.destroy_process_group()
     return summary
 
@@ -553,29 +559,6 @@ def _write_config(out: Path, cfg: TrainConfig, model: SSJMFlow, resume: bool) ->
         raise ProjregError(f"{path}: cannot write the run config ({e})") from e
 
 
-def launched_by_torchrun() -> bool:
-    """Whether ``torchrun`` started this process: it then joins a process group, even as the only rank
-    (``--nproc_per_node 1`` exercises the multi-GPU code on one GPU)."""
-    return "TORCHELASTIC_RUN_ID" in os.environ and "WORLD_SIZE" in os.environ
-
-
-def process_device() -> torch.device:
-    """This process's device: ``cuda:LOCAL_RANK`` (made current, cuDNN autotuning and TF32 matmuls on)
-    when CUDA is available, else the CPU. Under ``torchrun`` every rank gets its own GPU."""
-    if not torch.cuda.is_available():
-        return torch.device("cpu")
-    device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
-    torch.cuda.set_device(device)
-    torch.backends.cudnn.benchmark = True
-    torch.backends.cuda.matmul.allow_tf32 = True
-    torch.backends.cudnn.allow_tf32 = True
-    return device
-
-
-def _cuda_or_none(device: torch.device) -> torch.device | None:
-    return device if device.type == "cuda" else None
-
-
 class _Interval:
     """Loss statistics summed on the device between two log lines (means over the steps this process
     ran since the previous line), and the first step whose loss was not finite; ``flush`` reads them to
@@ -607,18 +590,3 @@ class _Interval:
         return row
 
 
-def checked_collective_tensor(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
-    """``tensor`` if it lives on the process's ``device``; NCCL takes CUDA tensors only, so a collective
-    on any other device is a bug that only a multi-GPU run would show."""
-    if tensor.device != device:
-        raise RuntimeError(f"collective tensor on {tensor.device}, but this process runs on {device}")
-    return tensor
-
-
-def _record_ddp_agreement(model: torch.nn.Module, out: Path, rank: int, world: int, device: torch.device) -> None:
-    """Every rank's parameter checksum, gathered to rank 0 (``ddp_params.json``): DDP keeps them equal."""
-    total = torch.stack([p.detach().double().sum() for p in model.parameters()]).sum().reshape(1).to(device)
-    gathered = [torch.zeros_like(total) for _ in range(world)]
-    dist.all_gather(gathered, checked_collective_tensor(total, device))
-    if rank == 0:
-        (out / "ddp_params.json").write_text(json.dumps([float(g) for g in gathered]))

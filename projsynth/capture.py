@@ -25,17 +25,19 @@ from pathlib import Path
 import numpy as np
 
 from . import ProjsynthError, __version__
-from .export import png_bytes
-from .flowio import encode_flow_exr, remove_stale_temporaries, write_atomic_all
+from .files import remove_stale_temporaries, write_atomic_all
+from .flowio import encode_flow_exr
+from .images import load_image, png_bytes
 from .outputs import folder_files, refuse_overwriting_inputs
 from .photometric import BLENDS
 from .procedural import render_procedural
+from .ranges import draw
 from .render import alpha_field, camera_view, ground_truth, photograph
 from .rig import make_scene
 from .scene import Scene
-from .sources import fit_to_size, load_image
+from .sources import fit_to_size
 from .structured import PatternSet
-from .transforms import TransformTable, draw
+from .transforms import TransformTable
 
 CAPTURE_FILE, TRUTH_FILE = "capture.json", "truth.exr"
 _CAPTURE = 2  # spawn-key word of the virtual rig's streams (0: samples, 1: source images)

@@ -23,17 +23,9 @@ import numpy as np
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
 from .dataset import Sample, plan_hash
-from .shards import (
-    MANIFEST,
-    PLAN_FILE,
-    assemble_manifest,
-    file_sha256,
-    library_versions,
-    shard_name,
-    write_json_atomic,
-    write_shard,
-)
-from .sources import load_image
+from .files import file_sha256
+from .images import load_image
+from .shards import MANIFEST, PLAN_FILE, assemble_manifest, library_versions, shard_name, write_json_atomic, write_shard
 from .structured import PATTERNS_FILE, PatternSet
 
 CAPTURED_ROLE = "captured"

@@ -3,20 +3,15 @@
 from __future__ import annotations
 
 import json
-import os
-import sys
-from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
 import cv2
 import typer
-from tqdm import tqdm
-from typer.core import TyperCommand
 
 from . import ProjsynthError
 from .capture import capture as capture_scene
-from .cores import use_available_cores
+from .console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, output_path, run_console
 from .dataset import parse_size, resolve_plan
 from .decode import decode_folder
 from .export import export as export_samples
@@ -27,118 +22,13 @@ from .transforms import load_table, table_to_toml
 from .verify import inspect as inspect_dataset
 from .verify import verify as verify_dataset
 
-
-class Command(TyperCommand):
-    """Help that reads at 80 columns: click's plain layout (rich's table cuts long option names and
-    defaults) and every value shown as the docs name it (``DIR``, ``FILE``, ``N``), never Typer's
-    ``<list[Path]>`` or ``<bool>``. A value without an explicit ``metavar`` is named by its type; an
-    argument shows as its metavar alone (``DIR``, not Typer's ``{root}`` and ``<path>``)."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        for param in self.params:
-            if param.metavar is None and not getattr(param, "is_flag", False):
-                element = param.bare_type().removeprefix("list[").removesuffix("]")
-                param.metavar = _METAVARS.get(element, element.upper())
-            if param.param_type_name == "argument":
-                param._usage_display_name = partial(str, param.metavar)
-                param.display_type_rich = lambda ctx: None
-
-
-_METAVARS = {"int": "N", "float": "X", "str": "TEXT", "Path": "PATH"}
-PLAIN_HELP = {
-    "rich_markup_mode": None,
-    "add_completion": False,
-    "no_args_is_help": True,
-    "pretty_exceptions_enable": False,
-}
-
 app = typer.Typer(**PLAIN_HELP, help="Reproducible projector-camera pairs with exact ground-truth flow.")
 
 cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our own errors name the file
 
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
-MaxFlow = Annotated[
-    float | None,
-    typer.Option(
-        help="Flow colours saturate at this magnitude in px, the "
-        "same for every picture (default: each picture's largest).",
-        metavar="PX",
-    ),
-]
-
-
-def output_path(text: str) -> Path:
-    """The value of an output option; an empty one (an unset shell variable) is refused, where a plain
-    ``Path`` would read it as the current directory and write there."""
-    if not text.strip():
-        raise typer.BadParameter("empty; give a path to write to")
-    return Path(text)
-
-
-def _fail(e: Exception) -> typer.Exit:
-    typer.echo(f"projsynth: error: {e}", err=True)
-    return typer.Exit(2)
-
 
 def _status(line: str) -> None:
     typer.echo(f"projsynth: {line}", err=True)
-
-
-class Bar:
-    """A tqdm bar on stderr, drawn only when the work starts (its first ``total`` or ``update``).
-
-    A command whose input is refused before any work (a missing dataset, a bad option) prints its one
-    error line with no empty bar before it. ``--quiet``, and every torchrun rank but 0, draw none.
-    """
-
-    def __init__(self, desc: str, quiet: bool, unit: str = "sample", total: int | None = None):
-        self.kwargs = {
-            "desc": desc,
-            "unit": unit,
-            "disable": quiet or not is_rank0(),
-            "file": sys.stderr,
-            "leave": False,
-            "dynamic_ncols": True,
-            "total": total,
-        }
-        self.bar: tqdm | None = None
-
-    def _get(self) -> tqdm:
-        if self.bar is None:
-            self.bar = tqdm(**self.kwargs)
-        return self.bar
-
-    def total(self, n: int) -> None:
-        """Set the total (the bar is drawn from here on)."""
-        if self.bar is None:
-            self.kwargs["total"] = n
-        bar = self._get()
-        bar.total = n
-        bar.refresh()
-
-    def update(self, n: int = 1) -> None:
-        self._get().update(n)
-
-    def done(self, done: int, total: int) -> None:
-        """``(done, total)`` progress, as the library's ``progress`` callbacks report it."""
-        if self.bar is None:
-            self.kwargs["total"] = total
-        bar = self._get()
-        bar.total = total
-        bar.update(done - bar.n)
-
-    def __enter__(self) -> Bar:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
-def is_rank0() -> bool:
-    """False in every torchrun worker but rank 0: only rank 0 draws bars and prints summaries."""
-    return os.environ.get("RANK", "0") == "0"
 
 
 SPLIT_HELP = "train, val or test (disjoint source images), or all (every image: a held-out folder)."
@@ -217,7 +107,7 @@ def gen(
                 status=_status,
             )
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     if not quiet:
         state = "complete, manifest written" if result.manifest else "manifest pending (run `projsynth merge`)"
         typer.echo(
@@ -233,7 +123,7 @@ def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.", me
     try:
         manifest = merge(root)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     typer.echo(f"{root}: manifest of {manifest['num_samples']} samples in {len(manifest['shards'])} shards", err=True)
 
 
@@ -246,7 +136,7 @@ def verify(
         with Bar("verify", quiet) as bar:
             problems = verify_dataset(root, progress=bar.update, progress_total=bar.total)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     for p in problems:
         typer.echo(f"projsynth: verify: {p}", err=True)
     if problems:
@@ -266,7 +156,7 @@ def inspect(
         with Bar("inspect", quiet) as bar:
             report = inspect_dataset(root, progress=bar.update, progress_total=bar.total)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     if as_json:
         typer.echo(json.dumps(report, indent=1))
         return
@@ -319,7 +209,7 @@ def export(
         with Bar("export", quiet) as bar:
             n = export_samples(root, out, limit, progress=bar.update, progress_total=bar.total, max_flow=max_flow)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     if not quiet:
         typer.echo(f"{out}: {n} samples exported", err=True)
 
@@ -335,7 +225,7 @@ def preview(
     try:
         n = preview_sheet(root, out, count, max_flow)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     typer.echo(f"{out}: {n} samples", err=True)
 
 
@@ -353,7 +243,7 @@ def transforms_cmd(
             raise ProjsynthError("--json and --toml exclude each other; pick one output format")
         tab = load_table(table)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     if as_toml:
         typer.echo(table_to_toml(tab))
     elif as_json:
@@ -404,7 +294,7 @@ def patterns(
         pattern_set = make_set(kind, parse_size(size), None if grid is None else parse_grid(grid), period, shifts)
         files = write_patterns(pattern_set, out)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     typer.echo(f"{out}: {len(files) - 1} patterns and patterns.json", err=True)
 
 
@@ -444,7 +334,7 @@ def capture(
         pictures = {"contents": content or [], "background": background, "blend": blend}
         record = capture_scene(read_patterns(patterns_dir), out, **scene, **pictures, patterns_dir=patterns_dir)
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     photos, pictures = len(record["patterns"]["order"]), len(record["contents"])
     share = record["valid_share"]
     typer.echo(f"{out}: {photos} photos, {pictures} pictures, truth.exr ({share:.1%} of projector px valid)", err=True)
@@ -483,30 +373,8 @@ def decode(
     try:
         summary = decode_folder(patterns_dir, captures, out, [(Path(a), Path(b)) for a, b in pair or []])
     except ProjsynthError as e:
-        raise _fail(e) from None
+        raise fail("projsynth", e) from None
     typer.echo(f"{out}: {summary}", err=True)
-
-
-def run_console(application: typer.Typer, prog: str) -> None:
-    """Run a Typer app as a console command whose usage errors are one line too.
-
-    Typer prints a bad option value, a missing option or an unknown command as a framed, multi-line
-    box; here it is ``PROG: error: MESSAGE; see `PROG COMMAND --help``` and exit 2, like every other
-    error of these tools.
-    """
-    use_available_cores()
-    try:
-        code = application(prog_name=prog, standalone_mode=False)
-    except typer.Abort:
-        typer.echo(f"{prog}: aborted", err=True)
-        code = 1
-    except typer.TyperException as e:  # click's usage errors
-        ctx = getattr(e, "ctx", None)
-        where = ctx.command_path if ctx is not None else prog
-        message = " ".join(e.format_message().split()).rstrip(".")
-        typer.echo(f"{prog}: error: {message}; see `{where} --help`", err=True)
-        code = getattr(e, "exit_code", 2)
-    sys.exit(code if isinstance(code, int) else 0)
 
 
 def main() -> None:

@@ -23,14 +23,16 @@ from pathlib import Path
 import numpy as np
 
 from . import FORMAT_VERSION, ProjsynthError, __version__
+from .images import load_image
 from .motion import FRAME_RATE_HZ, MOTIONS, draw_trajectory, moved_scene
 from .photometric import BLENDS
 from .procedural import THEMES, render_procedural
+from .ranges import draw
 from .render import render
 from .rig import make_scene
 from .scene import Scene
-from .sources import SPLITS, FolderSource, SourceImage, fit_to_size, load_image
-from .transforms import TransformTable, draw, load_table, parse_selection
+from .sources import SPLITS, FolderSource, SourceImage, fit_to_size
+from .transforms import TransformTable, load_table, parse_selection
 
 ROLES = ("natural_on_generated", "generated_on_natural")
 KINDS = ("natural", "generated")

@@ -32,10 +32,11 @@ import numpy as np
 from . import ProjsynthError
 from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
-from .flowio import encode_flow_exr, remove_stale_temporaries, write_atomic_all
+from .files import remove_stale_temporaries, write_atomic_all
+from .flowio import encode_flow_exr
+from .images import IMAGE_EXTENSIONS, load_gray
 from .invert import invert_map
 from .outputs import folder_files, refuse_overwriting_inputs
-from .sources import IMAGE_EXTENSIONS, load_gray
 from .structured import PatternSet, read_patterns
 
 SATURATED = 0.995  # of full scale: a fringe photo at or above this at a pixel rejects the pixel

@@ -9,17 +9,11 @@ import cv2
 import numpy as np
 
 from . import ProjsynthError
-from .flowio import flow_to_color, write_atomic, write_flo
-from .flowviz import fit, flow_picture, font_scale, legend, put_label, scale_of, text_height
+from .files import write_atomic
+from .flowio import write_flo
+from .flowviz import fit, flow_picture, flow_to_color, font_scale, legend, put_label, scale_of, text_height
+from .images import png_bytes
 from .shards import ShardReader
-
-
-def png_bytes(path: Path, image: np.ndarray) -> bytes:
-    """``image`` (``H x W x 3`` RGB or ``H x W`` gray, uint8) encoded as a PNG file destined for ``path``."""
-    ok, data = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image)
-    if not ok:
-        raise ProjsynthError(f"{path}: cannot encode PNG of shape {image.shape}")
-    return data.tobytes()
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:

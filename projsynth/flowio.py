@@ -6,7 +6,6 @@ grid, ``flow[y, x] = (u, v)``; ``valid`` is bool ``(H, W)``.
 
 import io
 import os
-import secrets
 import struct
 from pathlib import Path
 
@@ -14,34 +13,13 @@ import numpy as np
 import OpenEXR
 
 from . import ProjsynthError
+from .files import write_atomic
 from .native import native_output_silenced
 
 EXR_CHANNELS = ("forward.u", "forward.v", "valid")
 FLO_MAGIC = 202021.25  # the bytes b"PIEH" read as a little-endian float32
 FLO_UNKNOWN = 1e10  # Middlebury readers treat a component > 1e9 as unknown flow
 _COMPRESSIONS = {"zip": OpenEXR.ZIP_COMPRESSION, "pxr24": OpenEXR.PXR24_COMPRESSION}
-# Baker et al. wheel, red -> yellow -> green -> cyan -> blue -> magenta -> red:
-# (hues, start colour, channel that ramps, +1 ramps up from 0 / -1 ramps down from 255)
-_WHEEL_SEGMENTS = (
-    (15, (255, 0, 0), 1, 1),
-    (6, (255, 255, 0), 0, -1),
-    (4, (0, 255, 0), 2, 1),
-    (11, (0, 255, 255), 1, -1),
-    (13, (0, 0, 255), 0, 1),
-    (6, (255, 0, 255), 2, -1),
-)
-
-
-def _make_wheel() -> np.ndarray:
-    rows = []
-    for n, start, ch, sign in _WHEEL_SEGMENTS:
-        seg = np.tile(np.array(start, np.float64), (n, 1))
-        seg[:, ch] += sign * np.floor(255 * np.arange(n) / n)
-        rows.append(seg)
-    return np.concatenate(rows)  # [55, 3] RGB in 0..255
-
-
-COLOR_WHEEL = _make_wheel()
 
 
 def _as_flow(flow: np.ndarray, where: str) -> np.ndarray:
@@ -155,53 +133,6 @@ def _read_bytes(path: Path) -> bytes:
         raise ProjsynthError(f"{path}: cannot read ({e.strerror or e}); check the path") from e
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write to a temporary name in the same directory, fsync, then rename: no half-written file."""
-    write_atomic_all([(path, data)])
-
-
-def write_atomic_all(files: list[tuple[Path, bytes]], make_parents: bool = False) -> None:
-    """Write several files all or nothing: every one to a temporary name (fsync) first, then rename
-    them; if any cannot be written, the temporaries are removed and no destination is touched.
-    ``make_parents`` creates missing folders (otherwise a missing folder is an error).
-
-    Raises:
-        ProjsynthError: naming the file that could not be written (or created as a folder).
-    """
-    staged: list[tuple[Path, Path]] = []
-    try:
-        for path, data in files:
-            path = Path(path)
-            tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-            try:
-                if make_parents:
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                with open(tmp, "xb") as f:
-                    staged.append((tmp, path))
-                    f.write(data)
-                    f.flush()
-                    os.fsync(f.fileno())
-            except OSError as e:
-                raise ProjsynthError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e
-        for tmp, path in staged:
-            try:
-                os.replace(tmp, path)
-            except OSError as e:
-                raise ProjsynthError(f"{path}: cannot write ({e.strerror or e}); check the directory") from e
-    finally:
-        for tmp, _ in staged:
-            tmp.unlink(missing_ok=True)
-
-
-def remove_stale_temporaries(folder: Path, names: list[str]) -> None:
-    """Remove the temporaries ``.NAME.*.tmp`` that an interrupted :func:`write_atomic_all` of ``NAME``
-    in ``folder`` left behind. Only for a folder one command writes alone (not a job array's manifest:
-    another writer's temporary may be in flight there)."""
-    for name in names:
-        for tmp in Path(folder).glob(f".{name}.*.tmp"):
-            tmp.unlink(missing_ok=True)
-
-
 def read_flow_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     """Read an EXR flow file from disk; returns ``(flow, valid, header)`` as :func:`decode_flow_exr`."""
     path = Path(path)
@@ -258,46 +189,3 @@ def read_flo(path: str | os.PathLike[str]) -> np.ndarray:
     return np.frombuffer(data, "<f4", offset=12).reshape(h, w, 2).astype(np.float32)
 
 
-def flow_to_color(flow: np.ndarray, valid: np.ndarray | None = None, max_magnitude: float | None = None) -> np.ndarray:
-    """Colour-code flow with the Baker et al. (Middlebury) 55-hue wheel.
-
-    Hue is the direction (rightward flow is red, leftward cyan-blue), saturation is
-    ``|flow| / max_magnitude`` (zero flow is white). Pixels beyond ``max_magnitude`` are drawn at full
-    saturation and darkened to 75 %. Invalid and non-finite pixels are black.
-
-    Args:
-        flow: ``(H, W, 2)`` floating array.
-        valid: optional bool ``(H, W)``; default all pixels.
-        max_magnitude: magnitude of full saturation; default the largest valid magnitude (1 if zero).
-
-    Returns:
-        uint8 ``(H, W, 3)`` RGB image.
-
-    Convention: flow projected -> captured, in px, ``flow[y, x] = (u, v)``, ``y`` down.
-
-    Example:
-        >>> flow_to_color(np.array([[[1.0, 0.0], [0.0, 0.0]]])).tolist()
-        [[[255, 0, 0], [255, 255, 255]]]
-    """
-    flow = _as_flow(flow, "flow_to_color")
-    ok = np.isfinite(flow).all(axis=-1)
-    if valid is not None:
-        ok &= _as_valid(valid, flow.shape, "flow_to_color")
-    f = np.where(ok[..., None], flow, 0.0).astype(np.float64)
-    rad = np.hypot(f[..., 0], f[..., 1])
-    if max_magnitude is None:
-        max_magnitude = float(rad.max()) or 1.0
-    elif not (np.isfinite(max_magnitude) and max_magnitude > 0):
-        raise ProjsynthError(f"flow_to_color: max_magnitude must be positive and finite, got {max_magnitude}")
-    rad = rad[..., None] / max_magnitude
-    n = len(COLOR_WHEEL)
-    # "+ 0.0" turns -0.0 into +0.0, so that v = +-0 land on the same side of the wheel's seam
-    a = np.arctan2(-(f[..., 1] + 0.0), -f[..., 0]) / np.pi  # [-1, 1]; -1 (and 1) is rightward
-    fk = (a + 1) / 2 * (n - 1)
-    k0 = np.floor(fk).astype(np.int64)
-    t = (fk - k0)[..., None]
-    col = (1 - t) * COLOR_WHEEL[k0] + t * COLOR_WHEEL[(k0 + 1) % n]  # [H, W, 3] in 0..255
-    col = np.where(rad <= 1, 255 - rad * (255 - col), 0.75 * col)
-    rgb = np.floor(col).astype(np.uint8)
-    rgb[~ok] = 0
-    return rgb

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from . import ProjsynthError
-from .flowio import flow_to_color
+from .flowio import _as_flow, _as_valid
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -112,3 +112,72 @@ def flow_picture(flow: np.ndarray, valid: np.ndarray | None = None, max_flow: fl
     color = flow_to_color(flow, valid, m)
     note = "full colour: --max-flow" if max_flow is not None else "full colour: this picture's largest"
     return np.vstack([color, legend(color.shape[1], m, note)])
+
+
+# Baker et al. wheel, red -> yellow -> green -> cyan -> blue -> magenta -> red:
+# (hues, start colour, channel that ramps, +1 ramps up from 0 / -1 ramps down from 255)
+_WHEEL_SEGMENTS = (
+    (15, (255, 0, 0), 1, 1),
+    (6, (255, 255, 0), 0, -1),
+    (4, (0, 255, 0), 2, 1),
+    (11, (0, 255, 255), 1, -1),
+    (13, (0, 0, 255), 0, 1),
+    (6, (255, 0, 255), 2, -1),
+)
+
+
+def _make_wheel() -> np.ndarray:
+    rows = []
+    for n, start, ch, sign in _WHEEL_SEGMENTS:
+        seg = np.tile(np.array(start, np.float64), (n, 1))
+        seg[:, ch] += sign * np.floor(255 * np.arange(n) / n)
+        rows.append(seg)
+    return np.concatenate(rows)  # [55, 3] RGB in 0..255
+
+
+COLOR_WHEEL = _make_wheel()
+
+
+def flow_to_color(flow: np.ndarray, valid: np.ndarray | None = None, max_magnitude: float | None = None) -> np.ndarray:
+    """Colour-code flow with the Baker et al. (Middlebury) 55-hue wheel.
+
+    Hue is the direction (rightward flow is red, leftward cyan-blue), saturation is
+    ``|flow| / max_magnitude`` (zero flow is white). Pixels beyond ``max_magnitude`` are drawn at full
+    saturation and darkened to 75 %. Invalid and non-finite pixels are black.
+
+    Args:
+        flow: ``(H, W, 2)`` floating array.
+        valid: optional bool ``(H, W)``; default all pixels.
+        max_magnitude: magnitude of full saturation; default the largest valid magnitude (1 if zero).
+
+    Returns:
+        uint8 ``(H, W, 3)`` RGB image.
+
+    Convention: flow projected -> captured, in px, ``flow[y, x] = (u, v)``, ``y`` down.
+
+    Example:
+        >>> flow_to_color(np.array([[[1.0, 0.0], [0.0, 0.0]]])).tolist()
+        [[[255, 0, 0], [255, 255, 255]]]
+    """
+    flow = _as_flow(flow, "flow_to_color")
+    ok = np.isfinite(flow).all(axis=-1)
+    if valid is not None:
+        ok &= _as_valid(valid, flow.shape, "flow_to_color")
+    f = np.where(ok[..., None], flow, 0.0).astype(np.float64)
+    rad = np.hypot(f[..., 0], f[..., 1])
+    if max_magnitude is None:
+        max_magnitude = float(rad.max()) or 1.0
+    elif not (np.isfinite(max_magnitude) and max_magnitude > 0):
+        raise ProjsynthError(f"flow_to_color: max_magnitude must be positive and finite, got {max_magnitude}")
+    rad = rad[..., None] / max_magnitude
+    n = len(COLOR_WHEEL)
+    # "+ 0.0" turns -0.0 into +0.0, so that v = +-0 land on the same side of the wheel's seam
+    a = np.arctan2(-(f[..., 1] + 0.0), -f[..., 0]) / np.pi  # [-1, 1]; -1 (and 1) is rightward
+    fk = (a + 1) / 2 * (n - 1)
+    k0 = np.floor(fk).astype(np.int64)
+    t = (fk - k0)[..., None]
+    col = (1 - t) * COLOR_WHEEL[k0] + t * COLOR_WHEEL[(k0 + 1) % n]  # [H, W, 3] in 0..255
+    col = np.where(rad <= 1, 255 - rad * (255 - col), 0.75 * col)
+    rgb = np.floor(col).astype(np.uint8)
+    rgb[~ok] = 0
+    return rgb

@@ -25,17 +25,7 @@ from threadpoolctl import threadpool_limits
 from . import FORMAT_VERSION, ProjsynthError, __version__
 from .dataset import Plan, make_sample, sample_key, source_images
 from .jit import KERNELS, uncompiled_kernels
-from .shards import (
-    MANIFEST,
-    PLAN_FILE,
-    assemble_manifest,
-    library_versions,
-    read_json,
-    shard_is_complete,
-    shard_name,
-    write_json_atomic,
-    write_shard,
-)
+from .shards import MANIFEST, PLAN_FILE, assemble_manifest, library_versions, read_json, shard_is_complete, shard_name, write_json_atomic, write_shard
 
 LOCK_FILE = ".gen.lock"
 SHARD_SIZE = 64  # the default: samples per shard (rounded down to whole sequences)

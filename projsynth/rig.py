@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from .lens import Lens
+from .ranges import draw
 from .scene import Scene, look_at, rotation_about
 from .surface import Surface
-from .transforms import draw
 
 REFERENCE_WIDTH = 512
 

@@ -7,7 +7,6 @@ exists, ``manifest.json`` (per-shard sha256 and per-sample content hashes). See 
 from __future__ import annotations
 
 import errno
-import hashlib
 import io
 import json
 import os
@@ -20,7 +19,8 @@ import numpy as np
 
 from . import ProjsynthError
 from .dataset import Sample
-from .flowio import decode_flow_exr, encode_flow_exr, write_atomic
+from .files import file_sha256, write_atomic
+from .flowio import decode_flow_exr, encode_flow_exr
 from .manifest import manifest_problems
 
 MANIFEST, PLAN_FILE = "manifest.json", "dataset.json"
@@ -169,14 +169,6 @@ def shard_is_complete(path: Path, config_hash: str) -> bool:
             return bool(f.attrs.get("complete")) and f.attrs.get("config_hash") == config_hash
     except (OSError, ValueError):
         return False
-
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def assemble_manifest(root: Path, plan_info: dict, num_shards: int, shard_size: int) -> dict:

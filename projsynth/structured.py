@@ -29,8 +29,8 @@ import numpy as np
 
 from . import ProjsynthError
 from .dataset import MAX_SIZE, MIN_SIZE
-from .export import png_bytes
-from .flowio import remove_stale_temporaries, write_atomic_all
+from .files import remove_stale_temporaries, write_atomic_all
+from .images import png_bytes
 
 PATTERN_FORMAT = 1
 PATTERNS_FILE = "patterns.json"

@@ -15,16 +15,14 @@ import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
-
 from . import ProjsynthError
+from .ranges import Ranges
 
 TABLE_VERSION = "builtin-v1"
 FAMILIES = ("planar", "lens", "cylinder_convex", "cylinder_concave", "sphere_convex", "sphere_concave", "wave", "bumps")
 CONDITIONS = ("studio", "night", "daylight", "translucent", "noisy")
 SEVERITIES = (1, 2, 3, 4)
 
-Ranges = dict[str, tuple[float, float]]
 
 # Geometry common to every family, by severity: how far the camera departs from the projector.
 _POSE: dict[int, Ranges] = {
@@ -399,6 +397,3 @@ def parse_selection(spec: str | None, n: int) -> list[int]:
     return sorted(ids)
 
 
-def draw(rng: np.random.Generator, ranges: Ranges) -> dict[str, float]:
-    """Draw every parameter uniformly inside its range, in sorted key order (stable across versions)."""
-    return {k: float(rng.uniform(*ranges[k])) for k in sorted(ranges)}

@@ -10,9 +10,10 @@ import numpy as np
 
 from . import ProjsynthError
 from .dataset import Sample
+from .files import file_sha256
 from .flowio import decode_flow_exr
 from .manifest import manifest_problems
-from .shards import MANIFEST, ShardReader, file_sha256, open_shard, read_json, shard_name
+from .shards import MANIFEST, ShardReader, open_shard, read_json, shard_name
 
 BUCKETS = ("s0-10", "s10-40", "s40+")
 

@@ -79,7 +79,7 @@ def test_a_fifo_among_the_sources_is_skipped_not_waited_for(probe, tmp_path):
 
 
 def _hold(out: Path, shards: range, ready, release) -> None:
-    from projsynth.generate import claim_shards  # (here: the other cases run on code without it, too)
+    from projsynth.generate import claim_shards
 
     with claim_shards(out, shards):
         ready.set()

@@ -3,14 +3,9 @@ import numpy as np
 import pytest
 
 from projreg import ProjregError
-from projreg.baselines import (
-    BASELINES,
-    SiftRansac,
-    homography_flow,
-    make_baseline,
-    parse_baselines,
-    to_gray,
-)
+from projreg.baselines import BASELINES, SiftRansac, make_baseline, parse_baselines
+from projreg.homography import homography_flow
+from projreg.imageops import to_gray
 from projreg.metrics import epe_map
 
 H, W = 128, 160

@@ -10,13 +10,15 @@ from typer.testing import CliRunner
 import projreg.bench
 from projreg import ProjregError
 from projreg.baselines import parse_baselines
-from projreg.bench import GROUPS, Method, parse_threshold, run_bench, sample_indices, to_markdown
+from projreg.bench import GROUPS, run_bench
+from projreg.bench_methods import Method
 from projreg.checkpoint import load_model
 from projreg.cli import app
-from projreg.confidence import Prediction, as_prediction
 from projreg.evaluate import predict_flow
-from projreg.metrics import KEYS, EPEAccumulator
+from projreg.metrics import KEYS, EPEAccumulator, sample_indices
+from projreg.prediction import Prediction, as_prediction
 from projreg.refine import GeometricRefiner
+from projreg.report import parse_threshold, to_markdown
 from projsynth.shards import ShardReader
 
 CPU = torch.device("cpu")

@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 
 from projreg import ProjregError
-from projreg.bench import Method, run_bench, to_markdown
+from projreg.bench import run_bench
+from projreg.bench_methods import Method
 from projreg.closedloop import UNCOMPENSATED, ClosedLoop
+from projreg.report import to_markdown
 from projsynth.rerender import Rerenderer
 from projsynth.shards import ShardReader
 

@@ -3,7 +3,8 @@
 import cv2
 import numpy as np
 
-from projreg.confidence import CONFIDENT, neighbourhood, pixel_confidence
+from projreg.confidence import neighbourhood, pixel_confidence
+from projreg.prediction import CONFIDENT
 
 
 def _bands(gap: int, h: int = 64, w: int = 400, band: int = 60) -> np.ndarray:

@@ -8,14 +8,15 @@ import pytest
 import torch
 import torch.distributed as dist
 
+import projreg.distributed as dd
 import projreg.train as tr
 
 
 def test_collective_tensors_must_live_on_the_process_device():
     cpu = torch.zeros(1)
-    assert tr.checked_collective_tensor(cpu, torch.device("cpu")) is cpu
+    assert dd.checked_collective_tensor(cpu, torch.device("cpu")) is cpu
     with pytest.raises(RuntimeError, match="collective tensor on cpu, but this process runs on meta"):
-        tr.checked_collective_tensor(cpu, torch.device("meta"))
+        dd.checked_collective_tensor(cpu, torch.device("meta"))
 
 
 def test_parameter_agreement_gathers_on_the_process_device(tmp_path, monkeypatch):
@@ -30,9 +31,9 @@ def test_parameter_agreement_gathers_on_the_process_device(tmp_path, monkeypatch
 
     monkeypatch.setattr(dist, "all_gather", all_gather)
     model = torch.nn.Linear(3, 2)
-    tr._record_ddp_agreement(model, tmp_path, rank=1, world=2, device=torch.device("meta"))
+    dd.record_ddp_agreement(model, tmp_path, rank=1, world=2, device=torch.device("meta"))
     assert seen == [torch.device("meta")] and not (tmp_path / "ddp_params.json").exists()
-    tr._record_ddp_agreement(model, tmp_path, rank=0, world=2, device=torch.device("cpu"))
+    dd.record_ddp_agreement(model, tmp_path, rank=0, world=2, device=torch.device("cpu"))
     sums = json.loads((tmp_path / "ddp_params.json").read_text())
     expected = sum(float(p.detach().double().sum()) for p in model.parameters())
     assert sums == pytest.approx([expected, expected], rel=1e-12)
@@ -44,13 +45,13 @@ def test_each_rank_binds_its_own_gpu(monkeypatch):
     monkeypatch.setattr(torch.cuda, "set_device", bound.append)
     monkeypatch.setenv("LOCAL_RANK", "3")
     monkeypatch.setattr(torch.backends.cudnn, "benchmark", False)
-    assert tr.process_device() == torch.device("cuda", 3) and bound == [torch.device("cuda", 3)]
+    assert dd.process_device() == torch.device("cuda", 3) and bound == [torch.device("cuda", 3)]
     assert torch.backends.cudnn.benchmark
 
 
 def test_without_cuda_the_process_runs_on_the_cpu(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    assert tr.process_device() == torch.device("cpu")
+    assert dd.process_device() == torch.device("cpu")
 
 
 def test_interval_statistics_read_the_device_once_and_find_the_first_bad_step():

@@ -7,12 +7,13 @@ import torch
 from typer.testing import CliRunner
 
 from projreg import ProjregError
-from projreg.bench import ModelRun, model_methods
+from projreg.bench_methods import ModelRun, model_methods
 from projreg.checkpoint import load_model
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.infer import FAST_MAX_SIDE, TorchNetwork, flows_resized, parse_device, parse_precision
-from projreg.refine import FAST_REFINE, GeometricRefiner
+from projreg.refine import GeometricRefiner
+from projreg.refine_config import FAST_REFINE
 from projsynth.flowio import read_flow_exr
 from projsynth.shards import ShardReader
 

@@ -10,7 +10,8 @@ from projreg.checkpoint import load_model
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.refine import GeometricRefiner
-from projsynth.flowio import flow_to_color, read_flow_exr
+from projsynth.flowio import read_flow_exr
+from projsynth.flowviz import flow_to_color
 from projsynth.shards import ShardReader
 
 CPU = torch.device("cpu")

@@ -15,12 +15,12 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from projreg.bench import check_thresholds, parse_threshold
 from projreg.checkpoint import load_checkpoint, load_model, reference_checkpoint
 from projreg.cli import app
 from projreg.evaluate import predict_flow
 from projreg.model.net import MODEL_CONFIGS
 from projreg.refine import GeometricRefiner
+from projreg.report import check_thresholds, parse_threshold
 from projsynth.dataset import resolve_plan
 from projsynth.flowio import read_flow_exr
 from projsynth.generate import generate

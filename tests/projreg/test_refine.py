@@ -8,33 +8,17 @@ import pytest
 
 import projreg.refine as refine_module
 from projreg import ProjregError
-from projreg.baselines import SiftRansac, homography_flow, to_gray
-from projreg.confidence import CONFIDENT, gap_confidence
+from projreg.baselines import SiftRansac
+from projreg.confidence import gap_confidence
+from projreg.evidence import alignment_score, bound_outside, periodicity, plane_agrees, repeating
 from projreg.frames import resize_flow, shrink
-from projreg.refine import (
-    FAST_REFINE,
-    GeometricRefiner,
-    RefineConfig,
-    SplineDesign,
-    alignment_score,
-    area_ratio,
-    bound_outside,
-    bspline_basis,
-    compose,
-    divide_albedo,
-    fit_affine,
-    fit_bspline,
-    fit_detail,
-    fit_homography,
-    local_ncc,
-    near,
-    normalize_contrast,
-    periodicity,
-    plane_agrees,
-    repeating,
-    texture_weight,
-    warp_back,
-)
+from projreg.homography import area_ratio, fit_affine, fit_homography, homography_flow
+from projreg.imageops import divide_albedo, local_ncc, near, normalize_contrast, texture_weight, to_gray
+from projreg.prediction import CONFIDENT
+from projreg.refine import GeometricRefiner
+from projreg.refine_config import FAST_REFINE, RefineConfig
+from projreg.splines import SplineDesign, bspline_basis, fit_bspline, fit_detail
+from projreg.warp import compose, warp_back
 from projsynth.procedural import render_procedural
 from projsynth.shards import ShardReader
 

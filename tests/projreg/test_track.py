@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from projreg.confidence import Prediction
+from projreg.prediction import Prediction
 from projreg.track import FlowTracker, JitterAccumulator, Tracker
 from projsynth.procedural import render_procedural
 

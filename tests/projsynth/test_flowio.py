@@ -10,16 +10,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from projsynth import ProjsynthError, flowio
-from projsynth.flowio import (
-    COLOR_WHEEL,
-    decode_flow_exr,
-    encode_flow_exr,
-    flow_to_color,
-    read_flo,
-    read_flow_exr,
-    write_flo,
-    write_flow_exr,
-)
+from projsynth.flowio import decode_flow_exr, encode_flow_exr, read_flo, read_flow_exr, write_flo, write_flow_exr
+from projsynth.flowviz import COLOR_WHEEL, flow_to_color
 
 SPECIALS = np.array(
     [0.0, -0.0, 1e-45, -1e-45, 1.1754944e-38, 1e-30, -1e-7, 599.99997, -600.0, 600.0, 0.5, -0.25],

@@ -2,10 +2,11 @@ import numpy as np
 import pytest
 
 from projsynth.photometric import PAPER_IDENTITY, sample_bilinear
+from projsynth.ranges import draw
 from projsynth.render import render
 from projsynth.rig import make_scene
 from projsynth.scene import backward, pixel_grid
-from projsynth.transforms import FAMILIES, builtin_table, draw
+from projsynth.transforms import FAMILIES, builtin_table
 
 H, W = 96, 128
 

@@ -12,18 +12,8 @@ import numpy as np
 import pytest
 
 from projsynth import ProjsynthError
-from projsynth.sources import (
-    IMAGE_EXTENSIONS,
-    MIN_SOURCE_SIDE,
-    SPLITS,
-    FolderSource,
-    SourceImage,
-    fit_to_size,
-    list_images,
-    load_image,
-    scene_label,
-    split_of,
-)
+from projsynth.images import IMAGE_EXTENSIONS, list_images, load_image
+from projsynth.sources import MIN_SOURCE_SIDE, SPLITS, FolderSource, SourceImage, fit_to_size, scene_label, split_of
 
 
 def rgb_image(h: int = 40, w: int = 56, seed: int = 0) -> np.ndarray:

@@ -2,15 +2,8 @@ import numpy as np
 import pytest
 
 from projsynth import ProjsynthError
-from projsynth.transforms import (
-    CONDITIONS,
-    FAMILIES,
-    builtin_table,
-    draw,
-    load_table,
-    parse_selection,
-    table_to_toml,
-)
+from projsynth.ranges import draw
+from projsynth.transforms import CONDITIONS, FAMILIES, builtin_table, load_table, parse_selection, table_to_toml
 
 
 def test_builtin_table_has_160_distinct_configs_in_id_order():

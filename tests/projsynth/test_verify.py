@@ -11,8 +11,10 @@ import pytest
 
 from projsynth.dataset import Sample
 from projsynth.export import label_height
-from projsynth.flowio import FLO_UNKNOWN, decode_flow_exr, encode_flow_exr, flow_to_color, read_flo
-from projsynth.shards import ShardReader, file_sha256, shard_name
+from projsynth.files import file_sha256
+from projsynth.flowio import FLO_UNKNOWN, decode_flow_exr, encode_flow_exr, read_flo
+from projsynth.flowviz import flow_to_color
+from projsynth.shards import ShardReader, shard_name
 from projsynth.verify import bucket_of
 
 # --- damaged files ----------------------------------------------------------------------------------

@@ -1,0 +1,103 @@
+"""Image operations the refinement and the baselines share: grey conversion, contrast normalisation,
+albedo division, texture evidence, local and weighted NCC, ramps and dilations.
+
+Convention: grey images float32 (or uint8 where stated) ``(H, W)``, origin top-left.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def to_gray(image: np.ndarray, equalize: bool = False) -> np.ndarray:
+    """The shared preprocessing: uint8 RGB ``(H, W, 3)`` -> uint8 gray ``(H, W)``, optionally equalised."""
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    return cv2.equalizeHist(gray) if equalize else gray
+
+
+def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
+    """Local contrast normalisation: ``(g - mean) / std`` over a Gaussian window, as uint8 ``128 + 40 z``.
+
+    The standard deviation is floored at 2 grey levels, so flat regions stay flat instead of turning
+    their quantisation noise into texture. ``sigma`` 0 returns ``gray`` unchanged.
+    """
+    if sigma == 0:
+        return gray
+    g = gray.astype(np.float32)
+    mean = cv2.GaussianBlur(g, (0, 0), sigma)
+    var = cv2.GaussianBlur(g * g, (0, 0), sigma) - mean * mean
+    z = (g - mean) / np.sqrt(np.maximum(var, 4.0))
+    return np.clip(128 + 40 * z, 0, 255).astype(np.uint8)
+
+
+def divide_albedo(gray0: np.ndarray, warped: np.ndarray, window: int) -> np.ndarray:
+    """``warped`` (the captured gray image in the projector frame) divided by the wall's reflectance.
+
+    A textured wall (paint, brick, plaster) multiplies the projected light; through a power-law camera
+    response the captured image is still the projected one times a reflectance map that carries the
+    wall's own edges, which contrast normalisation keeps and DIS follows. The reflectance is estimated
+    as the median, over a ``window`` x ``window`` square, of ``log(warped + 8) - log(gray0 + 8)``: a
+    wall's stripes or bricks wider than half the window survive the median, the texture-scale
+    structure a small misalignment leaves in the ratio does not. Returns float32 ``(H, W)``.
+    """
+    ratio = np.log(warped.astype(np.float32) + 8.0) - np.log(gray0.astype(np.float32) + 8.0)
+    coded = np.clip(np.round(128 + 40 * ratio), 0, 255).astype(np.uint8)  # OpenCV's large medians take uint8
+    return warped / np.exp((cv2.medianBlur(coded, window).astype(np.float32) - 128) / 40)
+
+
+def near(mask: np.ndarray, radius: float) -> np.ndarray:
+    """Pixels at most ``radius`` px (Euclidean) from a true pixel of ``mask``."""
+    far = cv2.distanceTransform(np.where(mask, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+    return far <= radius
+
+
+def texture_weight(gray: np.ndarray, floor: float = 0.0, sigma: float = 3.0) -> np.ndarray:
+    """Per-pixel weight in [0, 1]: local gradient energy (Sobel, squared, Gaussian-averaged) relative
+    to the frame's median or to ``floor``, whichever is larger, capped at 1.
+
+    The floor makes the weight absolute where the frame is mostly flat: a picture covering a quarter of
+    the frame, or one with almost no contrast, has a median energy near zero, and relative to that
+    noise would count as texture. ``floor = 64 g^2`` is the energy of a ramp of ``g`` grey levels per
+    pixel (a Sobel derivative is 8 times the slope).
+    """
+    g = gray.astype(np.float32)
+    energy = cv2.GaussianBlur(cv2.Sobel(g, cv2.CV_32F, 1, 0) ** 2 + cv2.Sobel(g, cv2.CV_32F, 0, 1) ** 2, (0, 0), sigma)
+    return np.minimum(energy / (max(float(np.median(energy)), floor) + 1e-3), 1.0)
+
+
+def local_ncc(gray0: np.ndarray, gray1: np.ndarray, sigma: float = 7.0) -> np.ndarray:
+    """Local normalised cross-correlation of two aligned images (Gaussian window ``sigma``), float32
+    ``(H, W)`` in [-1, 1]: 1 is a match up to local gain and offset, about 0 no match (and 0 where
+    either image is flat)."""
+    a, b = gray0.astype(np.float32), gray1.astype(np.float32)
+
+    def blur(img: np.ndarray) -> np.ndarray:
+        return cv2.GaussianBlur(img, (0, 0), sigma)
+
+    ma, mb = blur(a), blur(b)
+    cov = blur(a * b) - ma * mb
+    var = np.maximum((blur(a * a) - ma * ma) * (blur(b * b) - mb * mb), 1e-2)
+    return cov / np.sqrt(var)
+
+
+def weighted_ncc(gray0: np.ndarray, warped: np.ndarray, sigma: float, weight: np.ndarray | None) -> float:
+    """:func:`alignment_score` of an image already warped into the projector frame."""
+    return weighted_mean(local_ncc(gray0, warped, sigma), weight)
+
+
+def weighted_mean(values: np.ndarray, weight: np.ndarray | None) -> float:
+    """The mean of ``values`` weighted by ``weight`` (None: uniform)."""
+    if weight is None:
+        return float(values.mean())
+    return float((values * weight).sum() / max(float(weight.sum()), 1e-6))
+
+
+def ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """0 at or below ``lo``, 1 at or above ``hi``, linear between (``lo > hi`` decreases instead).
+
+    Example:
+        >>> ramp(np.array([0.0, 0.5, 1.0, 2.0]), 0.0, 1.0).tolist()
+        [0.0, 0.5, 1.0, 1.0]
+    """
+    return np.clip((np.asarray(x, np.float32) - lo) / (hi - lo), 0.0, 1.0)
