@@ -27,7 +27,7 @@ baseline as ``NAME+track`` (:mod:`projreg.track`: the first frame registered in 
 from the previous frame's flow); every result then carries ``jitter`` (``track.JitterAccumulator``)
 and the tracking rows ``tracking`` (how many frames were tracked, registered in full or re-registered
 after a lost track) and ``ms_mean`` (the mean time per frame, full registrations included).
-The report schema is documented in docs/projreg-cli.md.
+The report schema is documented in docs/cli/projreg.md.
 
 Convention: flow forward, projected -> captured, ``(H, W, 2)`` in pixels, ``flow[y, x] = (u, v)``.
 """
@@ -167,7 +167,7 @@ def run_bench(
 
     Returns:
         The report: ``{"dataset": {...}, "reference_model": str | None, "results": [...]}``, one
-        result per method (see docs/projreg-cli.md).
+        result per method (see docs/cli/projreg.md).
     """
     data = Path(data)
     _check_options(refine, batch_size, track, compensation, photometric)

@@ -298,7 +298,7 @@ def test_inspect_table(cli, mixed_ds):
     table = lines[3 : lines.index("", 3)]
     rows = {line.split()[0]: line.split()[1] for line in table}
     assert rows == {**{f: "2" for f in cli.MIXED_FAMILIES}, "TOTAL": "16"}
-    # the histogram docs/cli.md promises: one row of shares per family and in total, then bars
+    # the histogram docs/cli/projsynth.md promises: one row of shares per family and in total, then bars
     start = lines.index("flow magnitude histogram (px), share of valid pixels:")
     assert lines[start + 1].split() == ["family", "0-2", "2-5", "5-10", "10-20", "20-40", "40-80", "80-160", "160+"]
     hist = {line.split()[0]: line.split()[1:] for line in lines[start + 2 : start + 2 + len(rows)]}
