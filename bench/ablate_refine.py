@@ -3,7 +3,7 @@
     python bench/ablate_refine.py --data DIR [--model CKPT] [--every 4 | --limit N]
 
 For every evaluated sample the network runs once; the stages are then computed from its flow with
-the refiner's own functions and scored with the pooled EPE of ``projreg.metrics`` (overall and the
+the refiner's own functions and scored with the pooled EPE of ``projreg.evaluation.metrics`` (overall and the
 three magnitude buckets), beside SIFT + RANSAC.
 """
 
@@ -15,16 +15,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from projreg.baselines import make_baseline
-from projreg.checkpoint import load_model, resolve_checkpoint
-from projreg.evaluate import predict_flow
-from projreg.homography import fit_homography, fit_step, homography_flow
-from projreg.imageops import normalize_contrast, texture_weight, to_gray
-from projreg.metrics import EPEAccumulator, sample_indices
-from projreg.refine import GeometricRefiner
-from projreg.refine_config import RefineConfig
-from projreg.warp import compose
-from projsynth.shards import ShardReader
+from projreg.evaluation.baselines import make_baseline
+from projreg.evaluation.metrics import EPEAccumulator, sample_indices
+from projreg.geometry.homography import fit_homography, fit_step, homography_flow
+from projreg.geometry.images import normalize_contrast, texture_weight, to_gray
+from projreg.geometry.warp import compose
+from projreg.model.checkpoint import load_model, resolve_checkpoint
+from projreg.refine.config import RefineConfig
+from projreg.refine.refiner import GeometricRefiner
+from projreg.training.validate import predict_flow
+from projsynth.dataset.shards import ShardReader
 
 ROWS = (
     "network alone",

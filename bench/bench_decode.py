@@ -3,7 +3,7 @@
 Usage: python bench/bench_decode.py [--size 480x640] [--camera 600x800] [--every 4] [--seed 0]
 
 For every ``--every``-th transform of the built-in table: photograph the graycode and the dots
-patterns through that scene (``projsynth.capture``), decode, and compare with the exact forward map.
+patterns through that scene (``projsynth.structured.capture``), decode, and compare with the exact forward map.
 Prints one Markdown row per condition and per family (pooled), the worst transform of each metric,
 and the decode time per set. Figures go to docs/benchmarks.md.
 """
@@ -13,13 +13,13 @@ import time
 
 import numpy as np
 
-from projsynth.capture import make_rig, shoot
-from projsynth.dataset import parse_size
-from projsynth.decode import decode
-from projsynth.render import ground_truth
-from projsynth.scene import MISS, OCCLUDED, OUT_OF_FRAME, forward, pixel_grid
-from projsynth.structured import dot_centres, make_set
-from projsynth.transforms import builtin_table
+from projsynth.dataset.plan import parse_size
+from projsynth.dataset.transforms import builtin_table
+from projsynth.sim.render import ground_truth
+from projsynth.sim.scene import MISS, OCCLUDED, OUT_OF_FRAME, forward, pixel_grid
+from projsynth.structured.capture import make_rig, shoot
+from projsynth.structured.decode import decode
+from projsynth.structured.patterns import dot_centres, make_set
 
 
 def measure(kind: str, tid: int, size: tuple[int, int], camera: tuple[int, int], seed: int) -> dict:

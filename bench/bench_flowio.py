@@ -16,7 +16,7 @@ import zlib
 import numpy as np
 import OpenEXR
 
-from projsynth.flowio import decode_flow_exr, encode_flow_exr
+from projsynth.flow.formats import decode_flow_exr, encode_flow_exr
 
 H, W = 384, 512
 

@@ -6,7 +6,7 @@ With 2 workers each run also pays two process start-ups (imports and the numba c
 small runs understate steady-state throughput: use ``--samples 512`` for that.
 
 All figures come from one run so their ratios are comparable:
-* gen 1 / 2 workers: ``projsynth.generate.generate`` end to end (samples/s).
+* gen 1 / 2 workers: ``projsynth.dataset.generate.generate`` end to end (samples/s).
 * floor: per sample, decode two PNG sources + ``cv2.remap`` + EXR encode + HDF5 write, i.e. what any
   generator writing this format must do; the ratio gen/floor is the cost of the simulation itself.
   The flows encoded (and remapped by) are real generated ones, cycled: EXR's ZIP takes twice as long
@@ -32,10 +32,10 @@ import cv2
 import h5py
 import numpy as np
 
-from projsynth.dataset import make_sample, parse_size, resolve_plan, source_images
-from projsynth.flowio import encode_flow_exr
-from projsynth.generate import _write_one, generate
-from projsynth.shards import ShardReader
+from projsynth.dataset.generate import _write_one, generate
+from projsynth.dataset.plan import make_sample, parse_size, resolve_plan, source_images
+from projsynth.dataset.shards import ShardReader
+from projsynth.flow.formats import encode_flow_exr
 
 
 def _gen_rate(plan, shard_size: int, workers: int) -> float:

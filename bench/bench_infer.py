@@ -32,14 +32,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from projreg.checkpoint import load_model, reference_checkpoint
-from projreg.infer import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
-from projreg.metrics import EPEAccumulator, sample_indices
+from projreg.evaluation.metrics import EPEAccumulator, sample_indices
+from projreg.inference.runtime import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
+from projreg.model.checkpoint import load_model, reference_checkpoint
 from projreg.model.net import build_model
-from projreg.refine import GeometricRefiner
-from projreg.refine_config import FAST_REFINE, RefineConfig
-from projsynth.dataset import parse_size
-from projsynth.shards import ShardReader
+from projreg.refine.config import FAST_REFINE, RefineConfig
+from projreg.refine.refiner import GeometricRefiner
+from projsynth.dataset.plan import parse_size
+from projsynth.dataset.shards import ShardReader
 
 CPU = torch.device("cpu")
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from projsynth.shards import ShardReader
+from projsynth.dataset.shards import ShardReader
 
 
 def _timed(reader: ShardReader, k: int) -> tuple[float, float]:

@@ -22,11 +22,11 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
-from projreg.data import Augment, ShardDataset, StreamSampler
-from projreg.loss import sequence_loss
 from projreg.model.net import build_model, count_parameters
-from projsynth.dataset import parse_size, resolve_plan
-from projsynth.generate import generate
+from projreg.training.data import Augment, ShardDataset, StreamSampler
+from projreg.training.loss import sequence_loss
+from projsynth.dataset.generate import generate
+from projsynth.dataset.plan import parse_size, resolve_plan
 
 
 def main() -> None:

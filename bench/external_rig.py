@@ -268,7 +268,7 @@ def epe(flow: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float | None:
 
 def score(pair: Pair, out: Path, baselines: dict) -> dict:
     """Issue 16's per-pair figures for one pair (module docstring)."""
-    from projsynth.flowio import read_flow_exr
+    from projsynth.flow.formats import read_flow_exr
 
     flow, claimed, header = read_flow_exr(out / "flow" / f"{pair.name}_flow.exr")
     v = pair.valid
@@ -352,7 +352,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--markdown", type=Path)
     args = ap.parse_args()
-    from projreg.baselines import make_baseline
+    from projreg.evaluation.baselines import make_baseline
 
     h, w = (int(v) for v in args.size.lower().split("x"))
     items = contents(h, w)[: args.limit or None]

@@ -18,9 +18,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from projsynth import dataset, flowio, render
-from projsynth.dataset import make_sample, parse_size, resolve_plan, source_images
-from projsynth.generate import single_threaded
+from projsynth.dataset import plan as dataset
+from projsynth.dataset.generate import single_threaded
+from projsynth.dataset.plan import make_sample, parse_size, resolve_plan, source_images
+from projsynth.flow import formats as flowio
+from projsynth.sim import render
 
 STAGES = {
     dataset: ("make_scene",),
@@ -74,8 +76,8 @@ def main() -> None:
 
 
 def _families(plan) -> None:  # noqa: ANN001
-    from projsynth.rig import make_scene
-    from projsynth.scene import backward, forward, pixel_grid
+    from projsynth.sim.rig import make_scene
+    from projsynth.sim.scene import backward, forward, pixel_grid
 
     grid = pixel_grid(*plan.size)
     print("forward + backward map per family, ms (mean over the severities, condition studio):")

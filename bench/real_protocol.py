@@ -23,12 +23,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from projsynth.capture import capture
-from projsynth.captured import captured_samples, write_captured_dataset
-from projsynth.decode import decode_folder
-from projsynth.flowio import read_flow_exr
-from projsynth.structured import make_set, write_patterns
-from projsynth.transforms import builtin_table
+from projsynth.dataset.transforms import builtin_table
+from projsynth.flow.formats import read_flow_exr
+from projsynth.structured.capture import capture
+from projsynth.structured.captured import captured_samples, write_captured_dataset
+from projsynth.structured.decode import decode_folder
+from projsynth.structured.patterns import make_set, write_patterns
 
 PROJECTOR, CAMERA = (384, 512), (480, 640)
 SURFACES = {"concave": 110, "convex": 90}  # sphere_concave-s3-studio, sphere_convex-s3-studio

@@ -11,8 +11,8 @@ from typing import Annotated, NoReturn
 
 import typer
 
-from projsynth.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
-from projsynth.cores import available_cores
+from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
+from projsynth.utils.cores import available_cores
 
 from . import ProjregError
 
@@ -118,9 +118,9 @@ def train(
     quiet: Quiet = False,
 ) -> None:
     """Train the registration network on projsynth shards."""
-    from .distributed import launched_by_torchrun
-    from .train import TrainConfig
-    from .train import train as run_training
+    from .training.distributed import launched_by_torchrun
+    from .training.train import TrainConfig
+    from .training.train import train as run_training
 
     torchrun = launched_by_torchrun()
     quiet = quiet or not is_rank0()  # under torchrun, rank 0 speaks for the run
@@ -241,8 +241,8 @@ def export(
     opset: Annotated[int, typer.Option(help="ONNX opset of --onnx (16..23 with torch 2.13).", metavar="N")] = 18,
 ) -> None:
     """Strip a training checkpoint to weights + config + provenance, or export the network as ONNX."""
-    from .checkpoint import export_checkpoint
-    from .onnx_export import export_checkpoint_onnx
+    from .inference.onnx_export import export_checkpoint_onnx
+    from .model.checkpoint import export_checkpoint
 
     try:
         if (out is None) == (onnx is None):
@@ -334,13 +334,13 @@ def bench(
     quiet: Quiet = False,
 ) -> None:
     """Benchmark models and baselines: EPE by bucket, role, family, condition; ms per pair."""
-    from . import bench as lib
-    from . import report
-    from .baselines import parse_baselines
-    from .bench_methods import DEFAULT_BASELINES
+    from .evaluation import bench as lib
+    from .evaluation import report as reporting
+    from .evaluation.baselines import parse_baselines
+    from .evaluation.methods import DEFAULT_BASELINES
 
     try:
-        thresholds = [report.parse_threshold(spec) for spec in fail_above or []]
+        thresholds = [reporting.parse_threshold(spec) for spec in fail_above or []]
         if sheet is not None and (not compensation or sheet.suffix.lower() != ".png"):
             raise ProjregError(
                 f"--sheet {sheet}: a PNG contact sheet of compensations; give --compensation and a name ending in .png"
@@ -371,14 +371,14 @@ def bench(
                 track=track,
                 batch_size=batch_size,
             )
-        report.write_outputs(
+        reporting.write_outputs(
             report, json_path=json_out, markdown_path=markdown, sheet=None if sheet is None else (sheet, rows)
         )  # all or nothing
-        violations = report.check_thresholds(report, thresholds)
+        violations = reporting.check_thresholds(report, thresholds)
     except ProjregError as e:
         raise fail("projreg", e) from None
     if markdown is None:
-        typer.echo(report.compact_table(report))
+        typer.echo(reporting.compact_table(report))
     if not model and report["reference_model"] is None:
         typer.echo("projreg: no shipped reference model yet; benchmarked the baselines only", err=True)
     for line in violations:
@@ -429,7 +429,7 @@ def predict(
     quiet: Quiet = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
-    from .predict import predict as run_predict
+    from .inference.predict import predict as run_predict
 
     try:
         _torch_threads()
@@ -480,7 +480,7 @@ def compensate(
     gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
 ) -> None:
     """Pre-warp content: the projector image that makes the camera see CONTENT undistorted."""
-    from .compensate import compensate_files
+    from .inference.compensate import compensate_files
 
     try:
         if photometric and (white is None or black is None):
@@ -506,7 +506,7 @@ def compensate(
 
 def main() -> None:
     """The ``projreg`` console command (usage errors as one line, as in ``projsynth``)."""
-    from projsynth.console import run_console
+    from projsynth.utils.console import run_console
 
     run_console(app, "projreg")
 

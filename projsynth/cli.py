@@ -10,17 +10,17 @@ import cv2
 import typer
 
 from . import ProjsynthError
-from .capture import capture as capture_scene
-from .console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, output_path, run_console
-from .dataset import parse_size, resolve_plan
-from .decode import decode_folder
-from .export import export as export_samples
-from .export import preview as preview_sheet
-from .generate import default_shard_size, generate, merge
-from .structured import make_set, parse_grid, read_patterns, write_patterns
-from .transforms import load_table, table_to_toml
-from .verify import inspect as inspect_dataset
-from .verify import verify as verify_dataset
+from .dataset.export import export as export_samples
+from .dataset.export import preview as preview_sheet
+from .dataset.generate import default_shard_size, generate, merge
+from .dataset.plan import parse_size, resolve_plan
+from .dataset.transforms import load_table, table_to_toml
+from .dataset.verify import inspect as inspect_dataset
+from .dataset.verify import verify as verify_dataset
+from .structured.capture import capture as capture_scene
+from .structured.decode import decode_folder
+from .structured.patterns import make_set, parse_grid, read_patterns, write_patterns
+from .utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, output_path, run_console
 
 app = typer.Typer(**PLAIN_HELP, help="Reproducible projector-camera pairs with exact ground-truth flow.")
 

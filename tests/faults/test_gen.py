@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from projsynth.transforms import builtin_table
+from projsynth.dataset.transforms import builtin_table
 
 
 def _limit_file_size() -> None:
@@ -79,7 +79,7 @@ def test_a_fifo_among_the_sources_is_skipped_not_waited_for(probe, tmp_path):
 
 
 def _hold(out: Path, shards: range, ready, release) -> None:
-    from projsynth.generate import claim_shards
+    from projsynth.dataset.generate import claim_shards
 
     with claim_shards(out, shards):
         ready.set()

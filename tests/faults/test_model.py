@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-import projreg.checkpoint
+import projreg.model.checkpoint
 from projreg.model.net import MODEL_CONFIGS, build_model
 
 HOSTILE = {
@@ -38,7 +38,7 @@ def test_a_hostile_model_config_is_refused_before_building(probe, weights, tmp_p
         built.append(config)
         raise RuntimeError("a model was built")
 
-    monkeypatch.setattr(projreg.checkpoint, "SSJMFlow", record)
+    monkeypatch.setattr(projreg.model.checkpoint, "SSJMFlow", record)
     image = tmp_path / "a.png"
     assert cv2.imwrite(str(image), np.zeros((64, 64, 3), np.uint8))
     if command == "predict":

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from projreg import ProjregError
-from projreg.infer import flows_resized
-from projsynth.flowio import read_flow_exr, write_flow_exr
+from projreg.inference.runtime import flows_resized
+from projreg.model.checkpoint import reference_checkpoint
+from projsynth.flow.formats import read_flow_exr, write_flow_exr
 
 SIZE = "96x128"
 
@@ -43,7 +44,7 @@ def test_1_capture_into_the_patterns_folder_is_refused(probe, rig, tmp_path):
 def test_2_bench_reports_never_overwrite_the_dataset_or_the_model(probe, d_copy, tmp_path):
     before = _snapshot(d_copy)
     model = tmp_path / "ref.pt"
-    shutil.copy(__import__("projreg.checkpoint", fromlist=["x"]).reference_checkpoint(), model)
+    shutil.copy(reference_checkpoint(), model)
     quick = ["--baselines", "dis-fast", "--refine", "off", "--limit", "1"]
     cases = [
         ("--json", d_copy / "manifest.json", []),
@@ -54,7 +55,7 @@ def test_2_bench_reports_never_overwrite_the_dataset_or_the_model(probe, d_copy,
         line = probe.error(probe.projreg("bench", "--data", d_copy, option, target, *extra, *quick), option)
         assert "is the input" in line
     assert _snapshot(d_copy) == before
-    assert model.read_bytes() == __import__("projreg.checkpoint", fromlist=["x"]).reference_checkpoint().read_bytes()
+    assert model.read_bytes() == reference_checkpoint().read_bytes()
     same = tmp_path / "r.json"
     probe.error(probe.projreg("bench", "--data", d_copy, "--json", same, "--markdown", same, *quick), "own file")
 
@@ -161,8 +162,8 @@ def test_7_decode_of_black_photos_is_refused(probe, rig, tmp_path):
 
 
 def test_7_bench_reports_a_dataset_without_valid_pixels(probe, rig, tmp_path):
-    from projsynth.captured import captured_samples, write_captured_dataset
-    from projsynth.structured import read_patterns
+    from projsynth.structured.captured import captured_samples, write_captured_dataset
+    from projsynth.structured.patterns import read_patterns
 
     pat, cap = rig
     photos = sorted(cap.glob("[0-9]*.png"))
@@ -351,7 +352,7 @@ def test_g_a_rerun_removes_what_a_killed_decode_left(probe, rig, tmp_path):
 
 
 def test_h_decode_json_is_written_last(probe, rig, tmp_path, monkeypatch):
-    import projsynth.decode
+    import projsynth.structured.decode
 
     out = tmp_path / "o"
     args = [
@@ -371,7 +372,7 @@ def test_h_decode_json_is_written_last(probe, rig, tmp_path, monkeypatch):
     def killed(*a, **k):
         raise RuntimeError("killed")  # as a kill between the correspondence and the dataset
 
-    monkeypatch.setattr(projsynth.decode, "write_captured_dataset", killed)
+    monkeypatch.setattr(projsynth.structured.decode, "write_captured_dataset", killed)
     probe.projsynth(*args)
     assert (out / "correspondence.exr").exists() and not (out / "decode.json").exists()
     flow, valid, _ = read_flow_exr(out / "correspondence.exr")

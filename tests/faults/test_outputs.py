@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from projsynth.flowio import write_flow_exr
+from projsynth.flow.formats import write_flow_exr
 
 H, W = 48, 64
 

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from projreg import ProjregError
-from projreg.train import TrainConfig, train
-from projsynth.shards import shard_name
+from projreg.training.train import TrainConfig, train
+from projsynth.dataset.shards import shard_name
 
 FAST = ["--steps", "1", "--batch-size", "2", "--crop", "none", "--workers", "0", "-q"]
 

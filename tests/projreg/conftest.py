@@ -2,9 +2,9 @@
 
 import pytest
 
-from projreg.train import TrainConfig, train
-from projsynth.dataset import resolve_plan
-from projsynth.generate import generate
+from projreg.training.train import TrainConfig, train
+from projsynth.dataset.generate import generate
+from projsynth.dataset.plan import resolve_plan
 
 
 def make_shards(root, *, size=(64, 96), transforms="0,21,42,63,84,105,126,147", seed=0, split="train", blend="paper"):

@@ -1,0 +1,38 @@
+"""The files ``predict`` and ``compensate`` write: named as their format, never over an input, whole or not at all."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from projsynth import ProjsynthError
+from projsynth.utils.files import write_atomic
+from projsynth.utils.images import png_bytes
+from projsynth.utils.outputs import refuse_overwriting_inputs
+
+from .. import ProjregError
+
+
+def require_suffix(path: Path, suffix: str, option: str) -> None:
+    """Refuse an output name whose extension promises another format than the one written."""
+    if path.suffix.lower() != suffix:
+        raise ProjregError(
+            f"{option} {path}: this file is written as {suffix[1:].upper()}; give a name ending in {suffix}"
+        )
+
+
+def guard_outputs(outputs: list, inputs: list) -> None:
+    """:func:`projsynth.utils.outputs.refuse_overwriting_inputs` as a :class:`ProjregError`."""
+    try:
+        refuse_overwriting_inputs(outputs, inputs)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from None
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Atomic PNG write (temporary file, fsync, rename); errors become one ProjregError naming the file."""
+    try:
+        write_atomic(Path(path), png_bytes(path, image))
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e

@@ -1,0 +1,295 @@
+"""``projreg predict``: run a trained model on real (projected, captured) image pairs.
+
+Each pair gives the forward flow, projected -> captured, written as the shards' flow EXR (channels
+``forward.u``, ``forward.v``, ``valid``) and, optionally, a colour-wheel PNG. With the refinement,
+``valid`` is 1 where the refinement's confidence is at least ``CONFIDENT`` (0.5; docs/model.md) and
+the header says whether the pair registered at all (``registered``, ``claimed``, ``reason``); the
+network alone (``refine=False``) has no notion of invalid pixels and claims all of them.
+
+The captured image may have another size than the projected one (a camera is not a projector): it
+is resized for the network and the flow is given in its own pixels (:mod:`projreg.geometry.frames`).
+
+Tracking (``track=True``, two folders of frames): the pairs are one sequence in name order; the first
+is registered in full, each next one from the previous one's flow (:mod:`projreg.inference.track`); the EXR
+header's ``tracking`` says which (``full``, ``tracked`` or ``lost``: re-registered in full).
+
+Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the projected grid,
+``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from projsynth import ProjsynthError
+from projsynth.flow.formats import encode_flow_exr
+from projsynth.flow.pictures import flow_picture, scale_of
+from projsynth.utils.files import write_atomic_all
+from projsynth.utils.images import list_images, load_image, png_bytes
+
+from .. import ProjregError
+from ..geometry.frames import register_any_size, resize_to
+from ..model.checkpoint import resolve_checkpoint
+from ..prediction import CONFIDENT, Prediction
+from ..refine.config import FAST_REFINE
+from ..refine.refiner import GeometricRefiner
+from .outputs import guard_outputs, require_suffix
+from .runtime import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized, open_network
+from .track import Tracker
+
+
+@dataclass(frozen=True)
+class Predicted:
+    """What ``predict`` wrote for one pair: the EXR, its sample id, whether the pair registered (if
+    not, ``reason`` says why: its flow is zero and no pixel is valid) and the share of valid pixels."""
+
+    out: Path
+    sample_id: str
+    registered: bool
+    claimed: float
+    reason: str
+    tracking: str = ""  # tracking mode: "full", "tracked" or "lost"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One pair to predict and where its outputs go (``viz`` None: no PNG)."""
+
+    projected: Path
+    captured: Path
+    out: Path
+    viz: Path | None
+    sample_id: str
+
+
+def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
+    """File mode (two files) or folder mode (two folders, pairs by identical relative names).
+
+    Folder mode writes ``OUT/REL/STEM_flow.exr`` (and ``VIZ/REL/STEM_flow.png``) for every
+    ``REL/STEM.ext`` of the projected folder; the EXR's sample id is the relative path.
+    """
+    projected, captured, out = Path(projected), Path(captured), Path(out)
+    if not projected.is_dir():
+        if captured.is_dir():
+            raise ProjregError(
+                f"--projected {projected} is a file but --captured {captured} is a folder; "
+                "give two files or two folders"
+            )
+        require_suffix(out, ".exr", "--out")
+        if viz is not None:
+            require_suffix(Path(viz), ".png", "--viz")
+        return [Job(projected, captured, out, viz, projected.name)]
+    if not captured.is_dir():
+        raise ProjregError(
+            f"--projected {projected} is a folder but --captured {captured} is not; give two files or two folders"
+        )
+    try:
+        rel0 = [p.relative_to(projected).as_posix() for p in list_images(projected, "--projected")]
+        rel1 = [p.relative_to(captured).as_posix() for p in list_images(captured, "--captured")]
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    set0, set1 = set(rel0), set(rel1)
+    for rel in rel0:
+        if rel not in set1:
+            raise ProjregError(
+                f"{projected / rel}: no captured partner {captured / rel}; pairs match by identical relative file names"
+            )
+    for rel in rel1:
+        if rel not in set0:
+            raise ProjregError(
+                f"{captured / rel}: no projected partner {projected / rel}; "
+                "pairs match by identical relative file names"
+            )
+    jobs, seen = [], {}
+    for rel in rel0:
+        stem = Path(rel).with_suffix("").as_posix() + "_flow"
+        if stem in seen:
+            raise ProjregError(
+                f"{projected / rel} and {projected / seen[stem]} would both write {out / stem}.exr; rename one"
+            )
+        seen[stem] = rel
+        jobs.append(
+            Job(
+                projected / rel,
+                captured / rel,
+                out / f"{stem}.exr",
+                None if viz is None else Path(viz) / f"{stem}.png",
+                rel,
+            )
+        )
+    return jobs
+
+
+def predict(
+    projected: Path,
+    captured: Path,
+    out: Path,
+    *,
+    viz: Path | None = None,
+    model: Path | None = None,
+    max_side: int = 1024,
+    refine: bool = True,
+    device: str | None = None,
+    precision: str = "fp32",
+    backend: str = "torch",
+    batch_size: int = 1,
+    fast: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    max_flow: float | None = None,
+    track: bool = False,
+) -> list[Predicted]:
+    """Predict the flow of one pair of files, or of every pair of two folders.
+
+    Args:
+        projected, captured: two image files, or two folders (pairs by identical relative names).
+        out: the EXR file (file mode) or the output folder (folder mode).
+        viz: colour PNG file (file mode) or folder (folder mode); None writes none.
+        model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model; with
+            ``backend="onnxruntime"`` a graph written by ``projreg export --onnx``.
+        max_side: longest side the network sees; larger pairs are resized (:func:`projreg.inference.runtime.shrink`).
+        refine: follow the network with the geometric refinement (``projreg.refine``), at the
+            pair's own resolution; the EXR's ``valid`` is then its confidence >= ``CONFIDENT``.
+        device, precision, backend: where and how the network runs (:func:`projreg.inference.runtime.open_network`);
+            device None: CUDA when available, else the CPU.
+        batch_size: pairs per network call (folder mode; pairs of one size are batched).
+        fast: the fast path: the network sees at most ``FAST_MAX_SIDE`` and the refinement keeps only
+            the network's hypothesis on normalised images (``refine.FAST_REFINE``).
+        progress: called ``(done, total)`` after each pair.
+        max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
+            largest (``projsynth.flow.pictures.flow_picture``, with its legend).
+        track: the pairs of two folders are the frames of one sequence, in name order (module docstring).
+
+    Returns:
+        One :class:`Predicted` per pair, in pair order (the caller warns about unregistered pairs).
+    """
+    if max_side < 16:
+        raise ProjregError(f"--max-side must be >= 16, got {max_side}")
+    if batch_size < 1:
+        raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
+    if max_flow is not None:
+        try:
+            scale_of(np.zeros((1, 1, 2), np.float32), None, max_flow)
+        except ProjsynthError as e:
+            raise ProjregError(str(e)) from None
+    if track and not Path(projected).is_dir():
+        raise ProjregError(
+            f"--track: --projected {projected} is a file; give two folders of frames (taken in name order)"
+        )
+    if track and not refine:
+        raise ProjregError("--track follows each frame with the refinement; drop --no-refine")
+    if track and batch_size > 1:
+        raise ProjregError("--track registers frame after frame; drop --batch-size")
+    jobs = plan_jobs(projected, captured, out, viz)
+    weights = model if backend == "onnxruntime" else resolve_checkpoint(model)
+    guard_outputs(
+        [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
+        [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
+        + ([("--model", Path(weights))] if weights is not None else []),
+    )
+    net = open_network(weights, backend=backend, device=device, precision=precision)
+    if fast:
+        max_side = min(max_side, FAST_MAX_SIDE)
+    refiner = (GeometricRefiner(FAST_REFINE) if fast else GeometricRefiner()) if refine else None
+    if track:
+        return _track(jobs, net, refiner, max_side, progress, max_flow)
+    results = []
+    for start in range(0, len(jobs), batch_size):
+        chunk = jobs[start : start + batch_size]
+        pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
+        flows = flows_resized(net, [(a, resize_to(b, a.shape)) for a, b in pairs], max_side, batch_size)
+        for job, (img0, img1), flow in zip(chunk, pairs, flows, strict=True):
+
+            def register(a: np.ndarray, b: np.ndarray, flow: np.ndarray = flow) -> Prediction:
+                return Prediction(flow) if refiner is None else refiner.predict(a, b, flow)
+
+            pred = register_any_size(register, img0, img1)
+            results.append(_write(job, pred, refiner is not None, max_flow, camera=img1.shape[:2]))
+            if progress:
+                progress(len(results), len(jobs))
+    return results
+
+
+def _track(
+    jobs: list[Job],
+    net: TorchNetwork | OnnxNetwork,
+    refiner: GeometricRefiner,
+    max_side: int,
+    progress: Callable[[int, int], None] | None,
+    max_flow: float | None,
+) -> list[Predicted]:
+    """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`)."""
+
+    def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
+        return refiner.predict(img0, img1, flows_resized(net, [(img0, img1)], max_side)[0])
+
+    _require_one_size(jobs)
+    tracker = Tracker(register, refiner)
+    results = []
+    for job in jobs:
+        img0, img1 = _load(job.projected), _load(job.captured)
+        pred = register_any_size(tracker, img0, img1)
+        results.append(_write(job, pred, True, max_flow, tracking=tracker.last, camera=img1.shape[:2]))
+        if progress:
+            progress(len(results), len(jobs))
+    return results
+
+
+def _require_one_size(jobs: list[Job]) -> None:
+    """Before any frame is registered (and its flow written): every frame of a sequence has the first
+    one's projected and captured sizes, and every file reads. Costs one more decode per frame."""
+    first: dict[str, tuple[Path, tuple[int, ...]]] = {}
+    for job in jobs:
+        for option, path in (("--projected", job.projected), ("--captured", job.captured)):
+            shape = _load(path).shape
+            ref = first.setdefault(option, (path, shape))
+            if shape != ref[1]:
+                raise ProjregError(
+                    f"--track: {path} is {shape[1]}x{shape[0]} px but {ref[0]}, the sequence's first frame, is "
+                    f"{ref[1][1]}x{ref[1][0]}; the frames of one sequence share one size (nothing was written)"
+                )
+
+
+def _write(
+    job: Job,
+    pred: Prediction,
+    refined: bool,
+    max_flow: float | None,
+    tracking: str = "",
+    camera: tuple[int, int] | None = None,
+) -> Predicted:
+    """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
+    written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``); ``camera``:
+    the captured image's ``(H, W)``, the frame the flow's positions are in (header ``camera_size``)."""
+    valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
+    attrs = {
+        "registered": "yes" if pred.registered else "no",
+        "claimed": f"{valid.mean():.4f}",
+        "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)",
+    }
+    if camera is not None:
+        attrs["camera_size"] = f"{camera[0]}x{camera[1]}"
+    if pred.reason:
+        attrs["reason"] = pred.reason
+    if tracking:
+        attrs["tracking"] = tracking
+    try:
+        files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
+        if job.viz is not None:
+            files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
+        write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    return Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason, tracking)
+
+
+def _load(path: Path) -> np.ndarray:
+    try:
+        return load_image(path)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+
+

@@ -1,0 +1,135 @@
+"""What the images say about a flow beyond its photometric score: whether a plane explains it, where
+it may move outside its support, whether the content repeats (periodicity), and why a pair is not
+verified.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..geometry.images import weighted_ncc
+from ..geometry.warp import warp_back
+
+
+def plane_agrees(plane: np.ndarray, flow: np.ndarray, textured: np.ndarray, px: float) -> bool:
+    """Whether a homography's flow stays within ``px`` of the refined ``flow`` it was simplified from on 90 %
+    of the ``textured`` pixels: only then is it the same explanation of the images with less noise. Where
+    the residual moved the answer farther (a low-contrast pair whose residual wandered, a bent surface),
+    a close score says only that the images cannot tell the two apart.
+
+    Example:
+        >>> f = np.zeros((4, 4, 2), np.float32)
+        >>> plane_agrees(f, f + 1.0, np.ones((4, 4), bool), 2.0), plane_agrees(f, f + 3.0, np.ones((4, 4), bool), 2.0)
+        (True, False)
+    """
+    gap = np.linalg.norm(plane - flow, axis=-1)[textured]
+    return bool(gap.size) and float(np.percentile(gap, 90)) <= px
+
+
+def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, bound: float) -> np.ndarray:
+    """``flow`` where ``support`` is true; elsewhere moved at most ``bound`` px away from ``prior``.
+
+    Example:
+        >>> f = np.array([[[30.0, 40.0], [1.0, 0.0]]], np.float32)
+        >>> bound_outside(f, np.zeros_like(f), np.array([[False, False]]), 5.0)[0].tolist()
+        [[3.0, 4.0], [1.0, 0.0]]
+    """
+    d = flow - prior  # [H, W, 2]
+    n = np.linalg.norm(d, axis=-1, keepdims=True)
+    scale = np.where(support[..., None], 1.0, np.minimum(1.0, bound / np.maximum(n, 1e-6)))
+    return (prior + d * scale).astype(np.float32)
+
+
+def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.ndarray) -> str:
+    """Why a pair that passed no check is not registered: a repeating pattern when most of its texture
+    repeats itself (no check can tell the right period from the next), else ``no region verified``."""
+    repeats = 0.0 if repeating is None or not textured.any() else float(repeating[textured].mean())
+    if repeats >= 0.5:
+        period = "a flow one period off would pass every check"
+        return f"repeating pattern: {100 * repeats:.0f}% of the projected texture repeats itself ({period})"
+    return f"no region verified ({100 * claimed.mean():.1f}%)"
+
+
+def repeating(gray: np.ndarray, fine_peak: float = 0.85, coarse_peak: float = 0.93) -> np.ndarray:
+    """Pixels where the image repeats itself, bool ``(H, W)``: :func:`periodicity` at least ``fine_peak``
+    in the 64 px window or ``coarse_peak`` in the 128 or 256 px windows (those that fit the image).
+
+    The coarse windows ask for a closer repeat: a photograph of a regular thing (a brick wall) scores
+    0.83-0.91 there, from its courses, while its detail differs from one brick to the next, which the
+    photometric check sees; a repeated digital motif scores 0.98-1.00 (docs/model.md)."""
+    out = np.zeros(gray.shape, bool)
+    for tile, peak in ((64, fine_peak), (128, coarse_peak), (256, coarse_peak)):
+        if min(gray.shape) >= tile:  # a smaller image: no such window
+            out |= periodicity(gray, tile) >= peak
+    return out
+
+
+def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
+    """Per pixel, how well the image repeats itself around it, float32 ``(H, W)`` in [0, 1]: near 1 on a
+    grating, a checkerboard or a tiled motif, whose match one period away is as good as the true
+    one; low on an edge or a ramp, which stay similar under every move along them (the aperture
+    problem, which the smooth surface model resolves from their neighbours).
+
+    Each ``tile`` x ``tile`` window (side by side, Hann-weighted) gives its autocorrelation (FFT,
+    zero-padded, divided by the window's own so a shift is not penalised for the smaller overlap);
+    the score is its highest value outside the central lobe (the connected region >= 0.3 around zero
+    shift, which holds an edge's ridge), within half a tile; the tiles' scores are interpolated over
+    the frame. The window's edge weights leave periods up to about ``0.45 tile`` visible (64: 28 px).
+
+    Example:
+        >>> x = np.arange(128, dtype=np.float32)
+        >>> grating = np.tile(128 + 100 * np.sin(2 * np.pi * x / 7), (96, 1)).astype(np.uint8)
+        >>> bool(periodicity(grating)[48, 64] > 0.8)
+        True
+        >>> edge = np.tile(np.where(x < 64, 40, 200), (96, 1)).astype(np.uint8)
+        >>> bool(periodicity(edge)[48, 64] < 0.3)
+        True
+    """
+    h, w = gray.shape
+    if min(h, w) < tile:
+        return np.zeros((h, w), np.float32)
+    g = gray.astype(np.float32)
+    starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile), n - tile]) for n in (h, w)]
+    hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
+    tiles = np.stack([g[y : y + tile, x : x + tile] for y in starts[0] for x in starts[1]])  # [T, tile, tile]
+    tiles = (tiles - tiles.mean(axis=(1, 2), keepdims=True)) * hann
+
+    def autocorrelation(a: np.ndarray) -> np.ndarray:  # [..., 2 tile, 2 tile], zero shift at the centre
+        power = np.abs(np.fft.rfft2(a, s=(2 * tile, 2 * tile))) ** 2
+        return np.fft.fftshift(np.fft.irfft2(power, s=(2 * tile, 2 * tile)), axes=(-2, -1))
+
+    c = tile  # the zero shift after fftshift
+    span = slice(c - tile // 2, c + tile // 2 + 1)
+    window = autocorrelation(hann)[span, span]
+    ac = autocorrelation(tiles)[:, span, span] / np.maximum(window, 1e-6)  # [T, tile + 1, tile + 1]
+    ac = ac / np.maximum(ac[:, tile // 2, tile // 2 : tile // 2 + 1, None], 1e-6)
+    ac[:, window < 0.25 * window.max()] = 0.0
+    scores = np.zeros(len(tiles), np.float32)
+    for i, a in enumerate(ac):
+        if not np.isfinite(a).all() or tiles[i].std() < 1e-3:
+            continue
+        _, labels = cv2.connectedComponents((a >= 0.3).astype(np.uint8), connectivity=8)
+        outside = labels != labels[tile // 2, tile // 2]
+        scores[i] = float(np.clip(a[outside].max(initial=0.0), 0.0, 1.0))
+    grid = scores.reshape(len(starts[0]), len(starts[1]))
+    centres = [s + tile / 2 for s in starts]  # tile centres, px
+    x, y = (
+        np.interp(np.arange(w), centres[1], np.arange(len(centres[1]))),
+        np.interp(np.arange(h), centres[0], np.arange(len(centres[0]))),
+    )
+    mx, my = np.meshgrid(x.astype(np.float32), y.astype(np.float32))
+    return cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def alignment_score(
+    gray0: np.ndarray, gray1: np.ndarray, flow: np.ndarray, sigma: float = 7.0, weight: np.ndarray | None = None
+) -> float:
+    """How well ``flow`` aligns the pair: the mean of :func:`local_ncc` between ``gray0`` and ``gray1``
+    warped back by ``flow``, weighted by ``weight`` (the projected image's texture; None: uniform).
+
+    Weighting by texture makes the score count coverage: a flow that aligns one textured corner
+    and misaligns the rest of the texture scores by the whole texture, not by a median that flat
+    regions (NCC about 0 under any flow) dominate.
+    """
+    return weighted_ncc(gray0, warp_back(gray1, flow), sigma, weight)

@@ -1,0 +1,295 @@
+"""Decode photos of a pattern set into the projector -> camera correspondence (structured light).
+
+The result is a flow on the **projector grid** in **camera pixels**, exactly as the shards store
+ground truth: projector pixel ``(x, y)`` is seen at camera pixel ``(x + u, y + v)`` of the photos.
+``valid`` only where the decode is trustworthy.
+
+``graycode`` (dense, sub-pixel), in two steps:
+
+1. Per camera pixel, the projector position it sees: Gray code (each bit against its inverse, so
+   ambient light, albedo and gamma cancel) gives the stripe, the phase of ``N`` shifted fringes the
+   position inside the fringe period (``atan2`` of the first Fourier coefficient: an offset, a gain and
+   any harmonic below order ``N - 1`` of the projector's gamma or the camera's response cancel).
+   A pixel is kept when the white-black contrast and the fringe modulation are high enough, no fringe
+   photo is saturated, and the unwrapped phase agrees with its stripe.
+2. Per projector pixel, the camera position: a Gaussian-weighted local affine fit of camera position
+   against decoded projector position over the camera pixels that decoded near it (the map
+   ``camera = a + B (p - X)`` evaluated at ``X``), which averages the phase noise of many camera pixels
+   and is exact for locally affine maps. Kept where the samples surround ``X`` (centroid and spread),
+   the fit is consistent (residual) and the answer lies in the camera frame; everywhere else invalid.
+
+``dots`` (the paper's sparse protocol): :mod:`projsynth.structured.dots`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import ProjsynthError
+from ..flow.formats import encode_flow_exr
+from ..utils.files import remove_stale_temporaries, write_atomic_all
+from ..utils.images import IMAGE_EXTENSIONS, load_gray
+from ..utils.outputs import folder_files, refuse_overwriting_inputs
+from .captured import captured_samples, write_captured_dataset
+from .dots import decode_dots
+from .invert import invert_map
+from .patterns import PatternSet, read_patterns
+
+SATURATED = 0.995  # of full scale: a fringe photo at or above this at a pixel rejects the pixel
+MIN_CONTRAST = 0.02  # white - black, of full scale
+MIN_MODULATION = 0.15  # fringe amplitude / (white - black)
+BIT_MARGIN_PX = 2.0  # projector px from a Gray bit's own stripe edge beyond which the bit must be clear
+MIN_BIT_CONTRAST = 0.2  # |pattern - inverse| / (white - black) of a clear bit
+MIN_DECODED = 0.01  # share of projector pixels (graycode) or dots (dots) below which a decode is refused
+
+
+@dataclass(frozen=True)
+class Correspondence:
+    """A decoded forward map: ``flow`` ``(H, W, 2)`` float32 camera px - projector px, ``valid`` ``(H, W)``."""
+
+    flow: np.ndarray
+    valid: np.ndarray
+    stats: dict
+
+
+def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[Path]]:
+    """The photos of ``patterns`` in ``folder`` as ``(N, Hc, Wc)`` float32 grey in [0, 1], and their files.
+
+    Photos carry the pattern names with any image extension (8- or 16-bit, colour or grey).
+
+    Raises:
+        ProjsynthError: a photo is missing, an extra image is present, a photo is unreadable, or the
+            photos differ in size.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ProjsynthError(f"--captures {folder}: not a folder of photos")
+    found: dict[str, list[Path]] = {}
+    for p in sorted(folder.iterdir()):
+        if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
+            found.setdefault(p.stem, []).append(p)
+    names = set(patterns.names)
+    extra = sorted(s for s in found if s not in names)
+    if extra:
+        raise ProjsynthError(
+            f"--captures {folder}: {found[extra[0]][0].name} is not a photo of any pattern "
+            f"({len(extra)} such); keep only the photos named as the patterns"
+        )
+    files = []
+    for name in patterns.names:
+        if name not in found:
+            raise ProjsynthError(
+                f"--captures {folder}: no photo of pattern {name} (e.g. {name}.png); "
+                f"shoot all {len(patterns.names)} patterns in order"
+            )
+        if len(found[name]) > 1:
+            raise ProjsynthError(
+                f"--captures {folder}: two photos of pattern {name} "
+                f"({', '.join(p.name for p in found[name])}); keep one"
+            )
+        files.append(found[name][0])
+    images = [load_gray(files[0])]
+    for f in files[1:]:
+        img = load_gray(f)
+        if img.shape != images[0].shape:
+            raise ProjsynthError(
+                f"{f}: {img.shape[1]}x{img.shape[0]} px, but {files[0].name} is "
+                f"{images[0].shape[1]}x{images[0].shape[0]}; all photos must come from one camera "
+                "setting"
+            )
+        images.append(img)
+    return np.stack(images), files
+
+
+CORRESPONDENCE_FILE, DECODE_FILE = "correspondence.exr", "decode.json"
+
+
+def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tuple[Path, Path]] = ()) -> str:
+    """``projsynth decode``: the photos in ``captures`` of the set in ``patterns_dir`` -> ``out``.
+
+    Writes ``out/correspondence.exr`` (channels ``forward.u``, ``forward.v``, ``valid``, as the shards'
+    flow) and ``out/decode.json`` (what was decoded, how much is valid); with ``pairs``, ``out`` is
+    also a dataset of those pairs with the correspondence as truth (:mod:`projsynth.structured.captured`).
+
+    Returns:
+        A one-line summary for the user.
+    """
+    out = Path(out)
+    patterns = read_patterns(patterns_dir)
+    inputs = folder_files("--patterns", Path(patterns_dir)) + folder_files("--captures", Path(captures))
+    inputs += [(option, Path(p)) for pair in pairs for option, p in zip(("--pair", "--pair"), pair, strict=True)]
+    refuse_overwriting_inputs([("--out", out)], inputs)
+    photos, files = load_captures(patterns, captures)
+    result = decode(patterns, photos)
+    _require_decoded(result, patterns, photos, captures)
+    camera_size = photos.shape[1:]
+    samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
+    record = {
+        "patterns": str(patterns_dir),
+        "kind": patterns.kind,
+        "projector_size": list(patterns.size),
+        "camera_size": list(camera_size),
+        "photos": [f.name for f in files],
+        **result.stats,
+        "valid_share": float(result.valid.mean()),
+    }
+    # decode.json is the mark of a finished decode: gone while the others are rewritten, written last
+    try:
+        (out / DECODE_FILE).unlink(missing_ok=True)
+    except OSError as e:
+        raise ProjsynthError(f"--out {out / DECODE_FILE}: cannot replace it ({e.strerror or e})") from e
+    write_atomic_all(
+        [(out / CORRESPONDENCE_FILE, encode_flow_exr(result.flow, result.valid, "correspondence"))], make_parents=True
+    )
+    if samples:
+        write_captured_dataset(out, patterns, patterns_dir, files, samples, camera_size)
+        record["dataset_pairs"] = len(samples)
+    write_atomic_all([(out / DECODE_FILE, (json.dumps(record, indent=1) + "\n").encode())])
+    remove_stale_temporaries(out, [CORRESPONDENCE_FILE, DECODE_FILE])
+    what = (
+        f"{result.stats['dots_decoded']} of {result.stats['dots']} dots"
+        if patterns.kind == "dots"
+        else (f"{result.valid.mean():.1%} of projector pixels")
+    )
+    return f"{what} decoded into {CORRESPONDENCE_FILE}" + (f"; dataset of {len(samples)} pairs" if samples else "")
+
+
+def _require_decoded(result: Correspondence, patterns: PatternSet, photos: np.ndarray, captures: Path) -> None:
+    """Refuse a decode that found (almost) nothing: below ``MIN_DECODED`` of the projector's pixels
+    (``graycode``) or of its dots, naming the likely cause."""
+    if patterns.kind == "dots":
+        share = result.stats["dots_decoded"] / max(result.stats["dots"], 1)
+    else:
+        share = float(result.valid.mean())
+    if share >= MIN_DECODED:
+        return
+    on, off = ("white", "black") if patterns.kind == "graycode" else ("on", "off")
+    names = [n.split("-", 1)[1] for n in patterns.names]
+    contrast = float(np.median(photos[names.index(on)] - photos[names.index(off)]))
+    if contrast < MIN_CONTRAST:
+        cause = (
+            f"the photos of the {on} and {off} patterns barely differ (median {contrast:.1%} of full scale): "
+            "the projector was off or hidden, or the exposure far too short or too long"
+        )
+    else:
+        cause = "the photos are lit but do not decode: are they of these patterns, in this order, from one pose?"
+    raise ProjsynthError(
+        f"--captures {captures}: only {share:.1%} of the projector decoded (need >= {MIN_DECODED:.0%}); {cause}"
+    )
+
+
+def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:
+    """The correspondence of ``patterns`` from their photos ``(N, Hc, Wc)`` (:func:`load_captures`)."""
+    if photos.shape[0] != len(patterns.names):
+        raise ProjsynthError(f"{photos.shape[0]} photos for {len(patterns.names)} patterns")
+    stack = {name.split("-", 1)[1]: img for name, img in zip(patterns.names, photos, strict=True)}
+    if patterns.kind == "dots":
+        flow, valid, stats = decode_dots(patterns, stack)
+        return Correspondence(flow, valid, stats)
+    return decode_graycode(patterns, stack)
+
+
+# --- graycode ---------------------------------------------------------------------------------------
+
+
+def decode_graycode(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Correspondence:
+    """Dense sub-pixel decode (module docstring); ``stack`` maps pattern names without ``NN-`` to photos."""
+    xp, yp, ok, noise = camera_positions(patterns, stack)
+    flow, valid = invert_map(xp, yp, ok, patterns.size, noise)
+    stats = {
+        "phase_noise_px": round(noise, 4),
+        "camera_pixels_decoded": int(ok.sum()),
+        "camera_pixels": int(ok.size),
+        "projector_pixels_valid": int(valid.sum()),
+        "projector_pixels": int(valid.size),
+    }
+    return Correspondence(flow, valid, stats)
+
+
+def camera_positions(
+    patterns: PatternSet, stack: dict[str, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Per camera pixel, the projector position it sees: ``(xp, yp, ok)``, ``(Hc, Wc)`` each, and the
+    typical noise of one position (projector px, the 75th percentile over decoded pixels)."""
+    p = patterns.params
+    white, black = stack["white"], stack["black"]
+    contrast = white - black
+    ok = contrast > MIN_CONTRAST
+    coords, noise = [], []
+    for axis, size in (("x", patterns.size[1]), ("y", patterns.size[0])):
+        bits = [stack[f"gray-{axis}{b}"] - stack[f"gray-{axis}{b}-inv"] for b in range(p[f"bits_{axis}"])]
+        coarse = _gray_stripe(bits) * p["stripe"] + (p["stripe"] - 1) / 2  # [Hc, Wc] stripe centre, projector px
+        fine, modulation, saturated, spread = _phase(stack, axis, p["shifts"], p["period"])
+        pos = fine + p["period"] * np.rint((coarse - fine) / p["period"])
+        ok &= _bits_agree(bits, pos, p["stripe"], contrast)
+        ok &= (modulation > MIN_MODULATION * contrast) & ~saturated
+        ok &= (pos >= -0.5) & (pos <= size - 0.5)
+        coords.append(pos)
+        noise.append(spread)
+    typical = float(np.percentile(np.maximum(*noise)[ok], 75)) if ok.any() else 0.0
+    return coords[0], coords[1], ok, typical
+
+
+def _bits_agree(bits: list[np.ndarray], pos: np.ndarray, stripe: int, contrast: np.ndarray) -> np.ndarray:
+    """Where every Gray-code bit far from its own stripe edge says what the unwrapped position ``pos`` implies.
+
+    ``bits[b]`` is pattern minus inverse of bit ``b``. Bit ``b`` flips at the stripe boundaries
+    ``n * stripe - 0.5`` with ``n = 2^b (mod 2^(b+1))``; more than ``BIT_MARGIN_PX`` from those, it must
+    have the expected sign with at least ``MIN_BIT_CONTRAST`` of the white-black contrast. A noise-flipped
+    bit or a wrong unwrap fails here instead of shifting the position by whole periods.
+    """
+    n = np.floor((pos + 0.5) / stripe).astype(np.int64)
+    code = n ^ (n >> 1)
+    agree = np.ones(pos.shape, bool)
+    for b, diff in enumerate(bits):
+        t = (pos + 0.5) / stripe - 2**b
+        edge = np.abs(t - 2 ** (b + 1) * np.rint(t / 2 ** (b + 1))) * stripe
+        expected = np.where((code >> b) & 1 == 1, 1.0, -1.0)
+        agree &= (edge <= BIT_MARGIN_PX) | (diff * expected >= MIN_BIT_CONTRAST * contrast)
+    return agree
+
+
+def _gray_stripe(bits: list[np.ndarray]) -> np.ndarray:
+    """The stripe index per camera pixel from the Gray-code bits (pattern minus inverse), int64."""
+    gray = np.zeros(bits[0].shape, np.int64)
+    for b, diff in enumerate(bits):
+        gray |= (diff > 0).astype(np.int64) << b
+    binary, shift = gray.copy(), 1
+    while shift < len(bits):
+        binary ^= binary >> shift
+        shift <<= 1
+    return binary
+
+
+def _phase(stack: dict[str, np.ndarray], axis: str, shifts: int, period: int) -> tuple[np.ndarray, ...]:
+    """Per camera pixel along ``axis``: position in ``[0, period)``, fringe amplitude, unusable (fewer
+    than 4 unsaturated photos), and the position's noise (projector px, from the residual of the fit).
+
+    The fit is ``I_k = m + a cos(delta_k) + b sin(delta_k)``, phase ``atan2(b, a)``, by least squares over
+    the photos that are not saturated (a clipped sample is not a sample of the cosine); with all
+    ``shifts`` photos that is the usual closed form.
+    """
+    deltas = 2 * np.pi * np.arange(shifts) / shifts
+    photos = np.stack([stack[f"phase-{axis}{k}"] for k in range(shifts)])  # [N, Hc, Wc]
+    basis = np.stack([np.ones(shifts), np.cos(deltas), np.sin(deltas)], 1).astype(np.float32)  # [N, 3]
+    coef = np.einsum("kj,khw->jhw", basis, photos) * np.float32(2.0 / shifts)  # [3, Hc, Wc]
+    coef[0] *= 0.5
+    clipped = photos >= SATURATED
+    some = clipped.any(axis=0)
+    used = shifts - clipped.sum(axis=0)
+    if some.any():  # refit those pixels on their unclipped photos
+        keep = (~clipped[:, some].T).astype(np.float64)  # [P, N]
+        b64 = basis.astype(np.float64)
+        normal = np.einsum("pk,kj,ki->pji", keep, b64, b64) + 1e-6 * np.eye(3)  # (< 3 photos: flagged anyway)
+        rhs = np.einsum("pk,kj,kp->pj", keep, b64, photos[:, some])
+        coef[:, some] = np.linalg.solve(normal, rhs[..., None])[..., 0].T
+    fitted = np.einsum("kj,jhw->khw", basis, coef)
+    residual = np.sqrt(np.sum(np.where(clipped, 0, photos - fitted) ** 2, axis=0) / np.maximum(used - 3, 1))
+    amplitude = np.hypot(coef[1], coef[2])
+    phase = np.arctan2(coef[2], coef[1]).astype(np.float64)  # = 2 pi x / period (mod 2 pi)
+    noise = period / (2 * np.pi) * residual / (np.maximum(amplitude, 1e-6) * np.sqrt(np.maximum(used, 1) / 2))
+    return np.mod(phase / (2 * np.pi), 1.0) * period, amplitude, used < 4, noise

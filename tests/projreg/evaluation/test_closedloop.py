@@ -1,0 +1,81 @@
+"""Compensation judged by the camera's view: re-rendering is exact, the scores rank flows by what shows."""
+
+import numpy as np
+import pytest
+
+from projreg import ProjregError
+from projreg.evaluation.bench import run_bench
+from projreg.evaluation.closedloop import UNCOMPENSATED, ClosedLoop
+from projreg.evaluation.methods import Method
+from projreg.evaluation.report import to_markdown
+from projsynth.dataset.rerender import Rerenderer
+from projsynth.dataset.shards import ShardReader
+
+
+def test_rerendering_the_projected_image_gives_the_stored_photo_back(tiny_train, tiny_physical):
+    for root in (tiny_train, tiny_physical):
+        reader, rerenderer = ShardReader(root), Rerenderer(root)
+        for k in range(0, len(reader), 3):
+            s = reader.read(k)
+            view = rerenderer.views(k, [s["projected"]])[0]
+            np.testing.assert_array_equal(view.image, s["captured"])
+
+
+def test_scores_rank_flows_by_their_error(tiny_physical):
+    reader, loop = ShardReader(tiny_physical), ClosedLoop(tiny_physical)
+    for k in range(len(reader)):
+        s = reader.read(k)
+        flows = {"truth": s["flow"], **{f"off{d}": s["flow"] + np.float32(d) for d in (1, 3)}}
+        scores = loop.score(k, s, flows)
+        assert scores["truth"]["comp_psnr"] == 99.0 and scores["truth"]["comp_ssim"] == pytest.approx(1.0, abs=1e-3)
+        psnr = [scores[n]["comp_psnr"] for n in ("truth", "off1", "off3")]
+        assert psnr == sorted(psnr, reverse=True), psnr
+        assert scores[UNCOMPENSATED]["comp_psnr"] < 60
+        assert scores["off3"]["comp_ssim"] < scores["off1"]["comp_ssim"] < 1
+
+
+def test_bench_reports_compensation_rows(tiny_train):
+    zero = Method("zero", "baseline", lambda a, b: np.zeros((*a.shape[:2], 2), np.float32))
+    report = run_bench(tiny_train, baselines=("dis-medium",), extra_methods=[zero], limit=4, compensation=True)
+    rows = {r["name"]: r for r in report["results"]}
+    assert list(rows)[-1] == UNCOMPENSATED and rows[UNCOMPENSATED]["kind"] == "none"
+    assert rows[UNCOMPENSATED]["epe"] is None
+    for name in ("reference", "dis-medium", "zero", UNCOMPENSATED):
+        assert 0 < rows[name]["comp_psnr"] < 99 and 0 < rows[name]["comp_ssim"] <= 1
+    assert rows["reference"]["comp_psnr"] > rows[UNCOMPENSATED]["comp_psnr"]
+    assert "comp PSNR dB" in to_markdown(report)
+
+
+def test_compensation_needs_a_generated_dataset(tmp_path, tiny_train):
+    (tmp_path / "dataset.json").write_text('{"captured": {}}')
+    with pytest.raises(ProjregError, match="--compensation"):
+        ClosedLoop(tmp_path)
+
+
+def test_bench_writes_a_labelled_contact_sheet(tiny_train, tmp_path):
+    import cv2
+    from typer.testing import CliRunner
+
+    from projreg.cli import app
+
+    sheet = tmp_path / "sheet.png"
+    args = [
+        "bench",
+        "--data",
+        str(tiny_train),
+        "--baselines",
+        "none",
+        "--limit",
+        "2",
+        "--compensation",
+        "--photometric",
+        "--sheet",
+        str(sheet),
+        "--quiet",
+    ]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.stderr
+    picture = cv2.imread(str(sheet))
+    assert picture.shape[1] == 5 * 96 and picture.shape[0] == 22 + 2 * 64  # header + two samples
+    bad = CliRunner().invoke(app, ["bench", "--data", str(tiny_train), "--sheet", str(sheet)])
+    assert bad.exit_code == 2 and "--compensation" in bad.stderr

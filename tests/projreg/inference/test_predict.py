@@ -1,0 +1,198 @@
+import cv2
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+import projreg.inference.predict
+import projreg.model.checkpoint
+from projreg.cli import app
+from projreg.model.checkpoint import load_model
+from projreg.refine.refiner import GeometricRefiner
+from projreg.training.validate import predict_flow
+from projsynth.dataset.shards import ShardReader
+from projsynth.flow.formats import read_flow_exr
+from projsynth.flow.pictures import flow_to_color
+
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(scope="module")
+def pairs(tiny_train):
+    """Two shard samples as (projected, captured) RGB arrays."""
+    reader = ShardReader(tiny_train)
+    try:
+        return [(s["projected"], s["captured"]) for s in (reader.read(0), reader.read(13))]
+    finally:
+        reader.close()
+
+
+def _write(path, rgb):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    assert cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    return path
+
+
+def _cli(*args):
+    return CliRunner().invoke(app, ["predict", *(str(a) for a in args), "-q"])
+
+
+def test_file_mode_writes_the_model_flow_as_exr_and_png(pairs, tiny_ckpt, tmp_path):
+    img0, img1 = pairs[0]
+    a, b = _write(tmp_path / "a.png", img0), _write(tmp_path / "b.png", img1)
+    out, viz = tmp_path / "o" / "flow.exr", tmp_path / "flow.png"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--viz", viz, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    flow, valid, header = read_flow_exr(out)
+    assert flow.shape == (64, 96, 2)
+    assert header["sample_id"] == "a.png" and header["direction"] == "projected->captured"
+    # the same numbers as the model then the refinement run directly on the arrays: order, channels and
+    # direction wired right; valid is the refinement's confidence >= 0.5
+    expected = GeometricRefiner().predict(img0, img1, predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU))
+    np.testing.assert_allclose(flow, expected.flow, atol=1e-4)
+    np.testing.assert_array_equal(valid, expected.claimed)
+    assert 0.3 < valid.mean() and header["registered"] == "yes" and float(header["claimed"]) == round(valid.mean(), 4)
+    assert header["valid_threshold"] == "confidence >= 0.5" and "warning" not in result.stderr
+    png = cv2.cvtColor(cv2.imread(str(viz)), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(png[:64], flow_to_color(flow, valid))  # the legend strip below
+    assert png.shape[0] > 64 and png.shape[1] == 96
+    assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+def test_folder_mode_pairs_by_relative_name(pairs, tiny_ckpt, tmp_path):
+    names = ["x.png", "sub/y.png"]
+    for name, (img0, img1) in zip(names, pairs, strict=True):
+        _write(tmp_path / "P" / name, img0)
+        _write(tmp_path / "C" / name, img1)
+    out, viz = tmp_path / "out", tmp_path / "viz"
+    folders = ["--projected", tmp_path / "P", "--captured", tmp_path / "C"]
+    result = _cli(*folders, "--out", out, "--viz", viz, "--model", tiny_ckpt, "--no-refine")
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    model = load_model(tiny_ckpt, CPU)
+    for name, stem, (img0, img1) in zip(names, ["x_flow", "sub/y_flow"], pairs, strict=True):
+        flow, valid, header = read_flow_exr(out / f"{stem}.exr")
+        assert header["sample_id"] == name and valid.all()  # the network alone claims every pixel
+        np.testing.assert_allclose(flow, predict_flow(model, img0, img1, CPU), atol=1e-4)
+        assert (viz / f"{stem}.png").is_file()
+
+
+def test_a_blank_pair_is_reported_on_stderr_and_left_invalid(pairs, tiny_ckpt, tmp_path):
+    blank = np.full((64, 96, 3), 150, np.uint8)
+    a, b = _write(tmp_path / "blank.png", blank), _write(tmp_path / "seen.png", pairs[0][1])
+    out = tmp_path / "f.exr"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    (line,) = [x for x in result.stderr.splitlines() if x.strip()]
+    assert line.startswith("projreg: warning: blank.png: cannot be registered (textureless") and str(out) in line
+    flow, valid, header = read_flow_exr(out)
+    assert not valid.any() and not flow.any()
+    assert header["registered"] == "no" and "textureless" in header["reason"] and header["claimed"] == "0.0000"
+
+
+def test_a_repeating_pattern_is_reported_as_such(tiny_ckpt, tmp_path):
+    """A grating matched one period off passes every check: the pair is refused, and the user is told why."""
+    y, x = np.mgrid[0:160, 0:224].astype(np.float32)
+    grating = np.repeat((128 + 90 * np.sin(2 * np.pi * (x + 0.15 * y) / 9)).astype(np.uint8)[..., None], 3, axis=2)
+    moved = cv2.remap(grating, x - 3, y - 2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    a, b = _write(tmp_path / "grating.png", grating), _write(tmp_path / "moved.png", moved)
+    out = tmp_path / "f.exr"
+    result = _cli("--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    (line,) = [x for x in result.stderr.splitlines() if x.strip()]
+    assert line.startswith("projreg: warning: grating.png: cannot be registered (repeating pattern: 100%"), line
+    _, valid, header = read_flow_exr(out)
+    assert not valid.any() and header["registered"] == "no" and header["reason"].startswith("repeating pattern")
+
+
+def test_large_pairs_are_shrunk_and_the_flow_scaled_back(pairs, tiny_ckpt, tmp_path):
+    img0, img1 = pairs[0]
+    # pixel replication: INTER_AREA at 1/2 gives back exactly the original pair
+    big0, big1 = (np.repeat(np.repeat(i, 2, axis=0), 2, axis=1) for i in (img0, img1))
+    a, b = _write(tmp_path / "a.png", big0), _write(tmp_path / "b.png", big1)
+    out = tmp_path / "f.exr"
+    result = _cli(
+        "--projected", a, "--captured", b, "--out", out, "--model", tiny_ckpt, "--max-side", "96", "--no-refine"
+    )
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    flow, _, _ = read_flow_exr(out)
+    assert flow.shape == (128, 192, 2)
+    small = predict_flow(load_model(tiny_ckpt, CPU), img0, img1, CPU)  # [64, 96, 2]
+    assert np.median(np.abs(small)) > 0.1  # a meaningful comparison needs non-zero flow
+    # each 2x2 block of the big flow, in big-image pixels, is twice the small flow at that pixel
+    blocks = flow.reshape(64, 2, 96, 2, 2).mean(axis=(1, 3))
+    rel = np.abs(blocks - 2 * small) / np.maximum(np.abs(2 * small), 1e-3)
+    assert np.median(rel) < 0.1, np.median(rel)
+    # exactly: the small flow, bilinearly enlarged, times W/w' = H/h' = 2
+    np.testing.assert_allclose(flow, 2 * cv2.resize(small, (192, 128), interpolation=cv2.INTER_LINEAR), atol=1e-3)
+
+
+def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeypatch, one_line_error):
+    img0, img1 = pairs[0]
+    a, b = _write(tmp_path / "a.png", img0), _write(tmp_path / "b.png", img1)
+    out = tmp_path / "f.exr"
+    m = ("--model", tiny_ckpt)
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"not an image")
+    one_line_error(_cli("--projected", a, "--captured", junk, "--out", out, *m), junk)
+    one_line_error(_cli("--projected", tmp_path / "none.png", "--captured", b, "--out", out, *m), "none.png")
+    for side in ("P", "C"):
+        _write(tmp_path / side / "both.png", img0)
+    lonely = _write(tmp_path / "C" / "lonely.png", img1)
+    one_line_error(
+        _cli("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", tmp_path / "o", *m), lonely
+    )
+    one_line_error(_cli("--projected", tmp_path / "P", "--captured", b, "--out", out, *m), "--captured")
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", tmp_path / "f.png", *m), "--out", "ending in .exr")
+    one_line_error(
+        _cli("--projected", a, "--captured", b, "--out", out, "--viz", tmp_path / "v.exr", *m),
+        "--viz",
+        "ending in .png",
+    )
+    blocker = tmp_path / "blocker"
+    blocker.write_bytes(b"a file where the --viz folder would be")
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", blocker / "v.png", *m), blocker)
+    assert not out.exists()  # the flow and its picture, or neither
+    monkeypatch.setattr(projreg.model.checkpoint, "reference_checkpoint", lambda: None)
+    one_line_error(_cli("--projected", a, "--captured", b, "--out", out), "no shipped reference model yet", "--model")
+
+
+def test_track_mode_takes_the_frames_in_name_order_from_the_previous_flow(tiny_sequences, tiny_ckpt, tmp_path):
+    reader = ShardReader(tiny_sequences)
+    try:
+        frames = [reader.read(k) for k in range(3)]  # one sequence
+    finally:
+        reader.close()
+    for s in frames:
+        name = f"{s['params']['frame']:02d}.png"
+        _write(tmp_path / "P" / name, s["projected"])
+        _write(tmp_path / "C" / name, s["captured"])
+    out = tmp_path / "out"
+    result = _cli(
+        "--projected", tmp_path / "P", "--captured", tmp_path / "C", "--out", out, "--model", tiny_ckpt, "--track"
+    )
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    steps = [read_flow_exr(out / f"{i:02d}_flow.exr")[2]["tracking"] for i in range(3)]
+    assert steps[0] == "full" and set(steps[1:]) <= {"tracked", "lost"}
+    # the same as the tracker run directly
+    from projreg.inference.track import Tracker
+
+    model, refiner = load_model(tiny_ckpt, CPU), GeometricRefiner()
+    tracker = Tracker(lambda a, b: refiner.predict(a, b, predict_flow(model, a, b, CPU)), refiner)
+    for i, s in enumerate(frames):
+        expected = tracker(s["projected"], s["captured"])
+        assert tracker.last == steps[i]
+        np.testing.assert_allclose(read_flow_exr(out / f"{i:02d}_flow.exr")[0], expected.flow, atol=1e-4)
+
+
+def test_track_mode_errors_name_the_option(pairs, tiny_ckpt, tmp_path, one_line_error):
+    a, b = _write(tmp_path / "a.png", pairs[0][0]), _write(tmp_path / "b.png", pairs[0][1])
+    one_line_error(
+        _cli("--projected", a, "--captured", b, "--out", tmp_path / "f.exr", "--model", tiny_ckpt, "--track"),
+        "--track",
+        "folders",
+    )
+    (tmp_path / "P").mkdir()
+    (tmp_path / "C").mkdir()
+    folders = ["--projected", tmp_path / "P", "--captured", tmp_path / "C"]
+    result = _cli(*folders, "--out", tmp_path / "o", "--model", tiny_ckpt, "--track", "--no-refine")
+    one_line_error(result, "--track", "--no-refine")

@@ -1,0 +1,62 @@
+"""The per-pixel confidence: pass marks spread over two neighbourhoods, nothing far from texture."""
+
+import cv2
+import numpy as np
+
+from projreg.prediction import CONFIDENT
+from projreg.refine.confidence import neighbourhood, pixel_confidence
+
+
+def _bands(gap: int, h: int = 64, w: int = 400, band: int = 60) -> np.ndarray:
+    """Texture weight 1 on two vertical bands ``band`` px wide, ``gap`` px apart, 0 elsewhere."""
+    texture = np.zeros((h, w), np.float32)
+    texture[:, :band] = 1.0
+    texture[:, band + gap : 2 * band + gap] = 1.0
+    return texture
+
+
+def _confidence(texture, fail=None, radius=10.0):
+    """Every check passed (ncc 1, residual 0, spread 0) except on the bool mask ``fail`` (ncc 0)."""
+    ncc = np.ones_like(texture) if fail is None else np.where(fail, 0.0, 1.0).astype(np.float32)
+    zero = np.zeros_like(texture)
+    return pixel_confidence(texture, ncc, zero, zero, radius)
+
+
+def test_a_flat_gap_between_verified_texture_is_claimed_by_the_coarse_neighbourhood():
+    texture = _bands(gap=50)
+    middle = (slice(None), slice(60 + 20, 60 + 30))  # 20-30 px (2-3 fine sigmas) from either band
+    passed = np.ones_like(texture)
+    fine = neighbourhood(texture, passed, 10.0, 0.05)
+    assert fine[middle].max() < CONFIDENT  # the fine scale alone leaves the gap out (the rule before)
+    assert _confidence(texture)[middle].min() >= CONFIDENT
+
+
+def test_far_from_texture_or_beside_failed_texture_nothing_is_claimed():
+    texture = _bands(gap=70)
+    conf = _confidence(texture)
+    assert conf[:, 300:].max() == 0.0  # 110+ px beyond the last band: no texture in either window
+    assert _confidence(_bands(gap=70))[:, 60 + 30 : 60 + 40].max() < CONFIDENT  # a gap too wide for both
+    failed = _confidence(texture, fail=texture > 0)  # the same texture, every check failed
+    assert failed.max() == 0.0
+    left_fails = np.zeros(texture.shape, bool)
+    left_fails[:, :60] = True
+    half = _confidence(texture, fail=left_fails)
+    assert half[:, :40].max() < CONFIDENT and half[:, 140:180].min() >= CONFIDENT
+
+
+def test_a_wide_neighbourhood_on_the_shrunk_grid_matches_the_full_size_one():
+    """From a sigma of 64 px the averages are taken on a shrunk grid; written out at full size here."""
+    rng = np.random.default_rng(5)
+    h, w, sigma = 240, 360, 96.0
+    texture = (cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 4) > 0.5).astype(np.float32)
+    passed = np.zeros((h, w), np.float32)
+    passed[:, : w // 2] = 1.0  # the checks pass on the left half only
+
+    def full_size(sigma):
+        density = cv2.GaussianBlur(texture, (0, 0), sigma)
+        agree = cv2.GaussianBlur(texture * passed, (0, 0), sigma) / np.maximum(density, 1e-6)
+        return agree * np.clip((density - 0.1) / 0.1, 0, 1)
+
+    shrunk = neighbourhood(texture, passed, sigma, 0.1)  # 3 times shrunk
+    assert shrunk.shape == (h, w) and np.abs(shrunk - full_size(sigma)).max() < 0.02
+    np.testing.assert_allclose(neighbourhood(texture, passed, 48.0, 0.1), full_size(48.0), atol=1e-5)  # not shrunk
