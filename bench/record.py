@@ -1,6 +1,7 @@
 """Re-measure one evaluation set of docs/results.md and store its figures under docs/results/.
 
 Usage: python bench/record.py SET [--threads N] [--dry-run]      (``make results-SET``, then ``make results``)
+       python bench/record.py --all                               (``make results-all``: every set but latency)
        python bench/record.py --list
 
 Each set (``SETS`` below) is a fixed list of commands at sizes chosen so that the set takes at most
@@ -77,7 +78,8 @@ class ResultSet:
 
     ``kind`` says how the page reads the reports: ``bench`` (``projreg bench --json``), ``decode``
     (``bench/bench_decode.py``), ``external`` (``bench/external_rig.py``) or ``latency`` (a bench
-    report of which only the timings are shown). ``about`` is the set's paragraph on the page.
+    report of which only the timings are shown, each beside its ratio to the method ``peer``).
+    ``about`` is the set's paragraph on the page.
     """
 
     name: str
@@ -86,6 +88,7 @@ class ResultSet:
     about: str
     prepare: tuple[str, ...]
     runs: tuple[Run, ...]
+    peer: str = ""
 
 
 def _bench(data: str, report: str, options: str) -> str:
@@ -116,8 +119,8 @@ SETS = (
         "real",
         "Real pictures",
         "bench",
-        "Pictures the model never saw: scikit-image's 12 photographs x its 7 artworks "
-        "(`bench/real_sources.py`), paired by `projsynth gen --split all` over the 32 transforms of "
+        "Pictures the model never saw: scikit-image's photographs and its artworks "
+        "(`bench/real_sources.py`: 12 and 7), paired by `projsynth gen --split all` over the 32 transforms of "
         "the Makefile's `SPREAD32` (every family and severity once).",
         (
             f"python bench/real_sources.py --out {_B}/real/sources",
@@ -250,6 +253,7 @@ SETS = (
                 _bench(f"{_B}/latency", "latency.json", f"--baselines {BASELINES} --refine both --limit 32"),
             ),
         ),
+        "dis-medium",
     ),
 )
 BY_NAME = {s.name: s for s in SETS}
@@ -356,6 +360,8 @@ def record(rs: ResultSet, threads: int, dry_run: bool = False) -> dict | None:
     meta["commands"] = commands
     meta["runs"] = [{"report": r.report, "command": r.command, "label": r.label} for r in rs.runs]
     meta["steps"] = steps
+    if rs.peer:
+        meta["peer"] = rs.peer
     meta_path.write_text(json.dumps(meta, indent=1) + "\n")
     print(f"record {rs.name}: {meta['wall_s'] / 60:.1f} min; {', '.join(str(RESULTS / r.report) for r in rs.runs)}")
     return meta
@@ -366,8 +372,14 @@ def main() -> None:
     ap.add_argument("set", nargs="?", choices=list(BY_NAME), help="the evaluation set to measure")
     ap.add_argument("--threads", type=int, default=1, help="threads for torch, numba and OpenCV (default 1)")
     ap.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
+    ap.add_argument("--all", action="store_true", help="every set but latency, one after the other")
     ap.add_argument("--list", action="store_true", help="list the sets")
     args = ap.parse_args()
+    if args.all:
+        for rs in SETS:
+            if rs.kind != "latency":
+                record(rs, args.threads, args.dry_run)
+        return
     if args.list or args.set is None:
         print("\n".join(f"{s.name:13} {s.title}" for s in SETS))
         return
