@@ -124,7 +124,7 @@ real-protocol: setup
 			--quiet > /dev/null || exit 1; done; done
 	$(PY) bench/real_protocol.py table $(RP) | tee $(RP)/table.md
 
-# Structured-light decode accuracy on the virtual rig, every 4th transform (docs/benchmarks.md)
+# Structured-light decode accuracy on the virtual rig, every 4th transform (docs/results.md)
 bench-decode: setup
 	$(PY) bench/bench_decode.py
 
