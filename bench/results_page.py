@@ -298,12 +298,9 @@ def latency_run(report: dict, meta: dict) -> list[str]:
     peer = meta.get("peer") or next((r["name"] for r in rows_in if r["kind"] == "baseline"), rows_in[0]["name"])
     base = next(r["ms_per_pair"] for r in rows_in if r["name"] == peer)
     rows = [[f"`{r['name']}`", num(r["ms_per_pair"]), num(r["ms_per_pair"] / base)] for r in rows_in]
-    load = ", ".join(num(x, 2) for x in meta["machine"]["load_average_start"])
+    start, end = (", ".join(f"{x:.2f}" for x in meta["machine"][k]) for k in ("load_average_start", "load_average_end"))
     return [
-        para(
-            f"Data: {dataset_line(report)} Load average at the start {load} (1, 5, 15 min), at the end "
-            f"{', '.join(num(x, 2) for x in meta['machine']['load_average_end'])}."
-        ),
+        para(f"Data: {dataset_line(report)} Load average at the start {start} (1, 5, 15 min), at the end {end}."),
         "",
         table(["method", "ms per pair (median)", f"x `{peer}`"], rows),
         "",
