@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO ?= demo
 
-.PHONY: device-wheels clean-kernels setup test lint docs demo bench reference-model test-bench real-bench hard-bench external-bench real-protocol bench-decode clean
+.PHONY: device-wheels clean-kernels setup test lint docs demo bench reference-model test-bench real-bench hard-bench external-bench real-protocol bench-decode results results-all clean
 
 setup: $(VENV)/.installed
 
@@ -129,9 +129,29 @@ real-protocol: setup
 			--quiet > /dev/null || exit 1; done; done
 	$(PY) bench/real_protocol.py table $(RP) | tee $(RP)/table.md
 
-# Structured-light decode accuracy on the virtual rig, every 4th transform (docs/benchmarks.md)
+# Structured-light decode accuracy on the virtual rig, every 4th transform (docs/results.md)
 bench-decode: setup
 	$(PY) bench/bench_decode.py
+
+# docs/results.md, the current figures, from the stored measurements under docs/results/ alone
+# (bench/results_page.py): nothing is measured, and without new measurements no byte changes
+# (tests/test_results_page.py checks the committed page).
+results: setup
+	$(PY) bench/results_page.py
+
+# Re-measure one evaluation set at the checked-out commit, then rewrite the page: bench/record.py SET runs the
+# set's commands at their stated sizes on one core (about 15 min at most each; data under build/results/) and
+# stores its reports and metadata in docs/results/. SET: synthetic, real, hard, decode, compensation, tracking,
+# external, or latency (on an idle machine only: the one set whose timings the page shows; THREADS=N to give it N
+# cores, e.g. `make results-latency THREADS=2`). results-all: every set but latency, about an hour on one core.
+THREADS ?= 1
+results-all: setup
+	$(PY) bench/record.py --all --threads $(THREADS)
+	$(PY) bench/results_page.py
+
+results-%: setup
+	$(PY) bench/record.py $* --threads $(THREADS)
+	$(PY) bench/results_page.py
 
 clean:
 	rm -rf $(VENV) $(DEMO) build .pytest_cache .ruff_cache

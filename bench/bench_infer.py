@@ -1,4 +1,4 @@
-"""Inference latency of the registration network and the fast path (docs/benchmarks.md, "Inference latency").
+"""Inference latency of the registration network and the fast path (docs/history/2026-11-log.md, "Inference latency").
 
 Usage:
     python bench/bench_infer.py latency [--onnx build/onnx/reference.onnx] [--repeats 3] [--sizes 384x512,768x1024]

@@ -9,7 +9,7 @@
 #   $OUT/small-metrics.csv, $OUT/base-metrics.csv, $OUT/small.pt, $OUT/base.pt (exported checkpoints)
 #   $OUT/bench.json, $OUT/bench.md  the test-split table
 #
-# On the device machine (docs/benchmarks.md, "GPU training"): its python3 has torch with CUDA and every
+# On the device machine (docs/history/2026-11-log.md, "GPU training"): its python3 has torch with CUDA and every
 # dependency but OpenEXR, which travels as a wheel (`make device-wheels` fills .whl/):
 #
 #   run(command="bash bench/device_run.sh", carry=[".whl"], timeout_s=560)

@@ -23,7 +23,7 @@ photographs ship in the scikit-image wheel.
 rocket in one quadrant, a faint moon, enlarged bricks, coins, text; stripes every 72 px, an 11 px
 grating, 40 px checkers, a motif every 40 px, a hexagonal grid of dots, an almost blank page): the
 set the refinement's checks are chosen on, so the adversarial set above stays a test
-(docs/benchmarks.md, "Session 12").
+(docs/history/2026-11-log.md, "Session 12").
 """
 
 import argparse

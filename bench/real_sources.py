@@ -11,7 +11,7 @@ reference model (it sees built-in procedural images only), so
 
 is a test set of real pictures the model has never seen (``make real-bench``). The pictures ship
 inside the scikit-image wheel (the ``samples`` extra): nothing is downloaded, and nothing is
-committed to this repository. Provenance: docs/benchmarks.md.
+committed to this repository. Provenance: docs/history/2026-11-log.md.
 """
 
 import argparse

@@ -33,7 +33,7 @@ Network = Callable[[np.ndarray, np.ndarray], np.ndarray]
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 BACKENDS = ("torch", "onnxruntime")
 EXTRA = "pip install 'projsynth[onnx]'"
-FAST_MAX_SIDE = 256  # ``--fast``: the network sees at most 192 x 256 of a 384 x 512 pair (docs/benchmarks.md)
+FAST_MAX_SIDE = 256  # ``--fast``: the network sees at most 192 x 256 of a 384 x 512 pair (docs/history/2026-11-log.md)
 
 
 def default_device() -> torch.device:
@@ -70,7 +70,7 @@ def parse_precision(text: str, device: torch.device) -> torch.dtype:
     """``fp32``, ``bf16`` or ``fp16`` as a dtype the device runs; fp16 is refused on the CPU.
 
     Half precision on the CPU is an emulation there: the reference network took 7x longer in fp16
-    than in fp32 on the 2-core CI VM (docs/benchmarks.md), so it is an error rather than a slow surprise.
+    than in fp32 on the 2-core CI VM (docs/history/2026-11-log.md), so it is an error rather than a slow surprise.
     """
     if text not in PRECISIONS:
         raise ProjregError(f"--precision {text!r}: expected one of {', '.join(PRECISIONS)}")

@@ -141,7 +141,7 @@ def _banded_window_dot(f0: torch.Tensor, f1: torch.Tensor, radius: int) -> torch
     diagonal becomes the first ``2r + 1`` columns). About 14x the multiply-adds of the 81 per-offset
     products at radius 4 on a 128-wide map, but in matrix products instead of 81 element-wise passes
     and channel sums over the map: 10x faster in onnxruntime on a 96 x 128 map, 3-4x in PyTorch
-    (docs/benchmarks.md, "session 9"); equal up to float rounding.
+    (docs/history/2026-11-log.md, "session 9"); equal up to float rounding.
 
     Convention: f0, f1 ``[B, C, H, W]`` -> ``[B, K, H, W]`` in :func:`window_offsets` order.
     """
@@ -264,7 +264,7 @@ def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torc
     if mask.shape != (b, 9 * f * f, h, w):
         raise ProjregError(f"mask shape {tuple(mask.shape)} != {(b, 9 * f * f, h, w)}")
     # the softmax written out, normalised after the sum: onnxruntime's Softmax on a middle axis (or a
-    # transpose to put the 9 last) took 8-20 ms of a 384 x 512 pair's 236 (docs/benchmarks.md, session 10)
+    # transpose to put the 9 last) took 8-20 ms of a 384 x 512 pair's 236 (docs/history/2026-11-log.md, session 10)
     logits = mask.view(b, 1, 9, f * f, h * w)
     e = torch.exp(logits - logits.amax(dim=2, keepdim=True))  # [B, 1, 9, f*f, h*w]
     padded = replicate_pad1(f * flow)  # [B, 2, h+2, w+2]

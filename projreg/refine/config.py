@@ -105,7 +105,7 @@ class RefineConfig:
 # points of claims on validation), on the pair shrunk to 256 px with the pixel parameters halved
 # (windows, thresholds, fit points for a 384 x 512 pair; its contrast window, 8 px, is half the
 # full-size default before session 9, as measured);
-# docs/benchmarks.md ("Inference latency")
+# docs/history/2026-11-log.md ("Inference latency")
 FAST_REFINE = RefineConfig(
     plain_pass=False,
     identity_pass=False,

@@ -232,7 +232,7 @@ def single_threaded() -> Iterator[None]:
     """One thread for BLAS/OpenMP and OpenCV while rendering: parallelism comes from worker processes.
 
     With their default pools (2 threads each here, OpenBLAS spinning between tiny 3 x N products),
-    2 workers ran no faster than 1 (see docs/benchmarks.md).
+    2 workers ran no faster than 1 (see docs/history/2026-11-log.md).
     """
     previous = cv2.getNumThreads()
     cv2.setNumThreads(1)

@@ -8,7 +8,7 @@ camera finally sees (``projreg bench --compensation``): each candidate pre-warp 
 the same scene with the same noise.
 
 Cost: the scene draw, the backward map and the blend, without the forward map, the flow EXR or the
-shard write: less than generating the sample (docs/benchmarks.md). Source images are regenerated once
+shard write: less than generating the sample (docs/history/2026-11-log.md). Source images are regenerated once
 per pair (built-in procedural sources only: a dataset made from folders needs those folders, which the
 dataset does not hold).
 """

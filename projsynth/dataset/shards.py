@@ -295,7 +295,7 @@ class ShardReader:
 
         ``valid`` comes from the flow EXR (``verify`` checks it equals the ``valid`` dataset). The EXR
         decodes on a short-lived thread (OpenEXR releases the GIL) while the two images decompress here:
-        about 1 ms more CPU time, about a third less latency (docs/benchmarks.md). No thread outlives
+        about 1 ms more CPU time, about a third less latency (docs/history/2026-11-log.md). No thread outlives
         the call, so forking (DataLoader workers) is always safe. Format 2: HDF5 verifies each image
         chunk's Fletcher-32 checksum; the EXR's CRC-32 is checked on the decoding thread, the
         parameters' here (docs/format.md).

@@ -126,7 +126,7 @@ def gaussian_noise(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarr
     Each value is ``normal_table()[b]`` for 16 bits ``b`` of the generator's raw 64-bit output (low bits
     first), i.e. the normal distribution quantised to 65,536 equally likely levels (tails cut at
     +-4.3 sigma; the table is scaled to unit variance). About 3x faster than numpy's float32
-    ziggurat, which was the simulation's largest stage after the ray casts (docs/benchmarks.md); for
+    ziggurat, which was the simulation's largest stage after the ray casts (docs/history/2026-11-log.md); for
     sensor noise added to 8-bit images the quantisation (a level spacing under 4e-5 sigma near 0) is
     invisible.
     """

@@ -3,7 +3,7 @@
 The gate benchmarks the reference on a small test split that no training run used (its own seed)
 and fails when any gated metric exceeds the recorded threshold, so a change that makes the model,
 its inference or the generator worse fails ``make test``. The thresholds are the figures measured
-when the model was shipped plus a margin (docs/benchmarks.md); tighten them when a better model ships.
+when the model was shipped plus a margin (docs/history/2026-11-log.md); tighten them when a better model ships.
 """
 
 import json
