@@ -164,7 +164,7 @@ SETS = (
         "Structured-light decoding",
         "decode",
         "`projsynth`'s structured-light decoder on the virtual rig (`bench/bench_decode.py`): every 4th "
-        "transform of the table photographed through `projsynth.capture` (projector 480 x 640, camera "
+        "transform of the table photographed through `projsynth.structured.capture` (projector 480 x 640, camera "
         "600 x 800, seed 0), decoded, and compared with the simulator's exact forward map. Coverage: the "
         "share of projector pixels (dots: dot centres) landing valid in the camera frame that were "
         'decoded; errors in projector px over the decoded pixels; "valid where truth is not": decoded '

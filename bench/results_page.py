@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from record import RESULTS, ROOT, SETS, ResultSet  # noqa: E402
 
 OUT = Path("docs/results.md")
-RATIO_LIMIT = 1.5  # projreg.bench.RATIO_LIMIT, issue 16's bound (read from the reports' own figures)
+RATIO_LIMIT = 1.5  # projreg.evaluation.report.RATIO_LIMIT, issue 16's bound (read from the reports' own figures)
 
 HEADER = """# Results
 
