@@ -5,7 +5,7 @@ import shutil
 import h5py
 import pytest
 
-import projreg.evaluation.bench
+import projreg.evaluation.methods
 from projsynth.dataset.shards import shard_name
 
 READERS = ["inspect", "export", "preview", "train", "bench"]
@@ -27,7 +27,7 @@ def _read_with(probe, command, root, tmp_path):
 
 @pytest.fixture
 def no_reference(monkeypatch):
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: None)
 
 
 @pytest.mark.parametrize("command", READERS)

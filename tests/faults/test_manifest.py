@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-import projreg.evaluation.bench
+import projreg.evaluation.methods
 from projsynth.dataset.shards import shard_name
 
 EDITS = {
@@ -45,7 +45,7 @@ def _run(probe, command, root, tmp_path):
 def test_an_edited_manifest_is_one_line_for_readers_and_a_problem_for_verify(
     probe, d_copy, tmp_path, monkeypatch, edit
 ):
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: None)
     change, message = EDITS[edit]
     _edit(d_copy, change)
     manifest = d_copy / "manifest.json"

@@ -8,6 +8,7 @@ import torch
 from typer.testing import CliRunner
 
 import projreg.evaluation.bench
+import projreg.evaluation.methods
 from projreg import ProjregError
 from projreg.cli import app
 from projreg.evaluation.baselines import parse_baselines
@@ -102,7 +103,7 @@ def test_pooled_metrics_equal_direct_recomputation(report, tiny_train, tiny_ckpt
         model, refiner = load_model(tiny_ckpt, CPU), GeometricRefiner()
         predict = lambda a, b: refiner.predict(a, b, predict_flow(model, a, b, CPU))  # noqa: E731
     else:
-        predict = projreg.evaluation.bench.baseline_method("dis-medium").predict
+        predict = projreg.evaluation.methods.baseline_method("dis-medium").predict
     acc = EPEAccumulator()
     for s in _samples(tiny_train):
         pred = as_prediction(predict(s["projected"], s["captured"]))
@@ -153,7 +154,7 @@ def test_zero_predictor_and_shifted_oracle_give_hand_computed_metrics(report, ti
 
 def test_per_pair_distribution_worst_pair_and_claims_are_hand_computed(tiny_train, monkeypatch):
     """The worst cases beside the pooled figures, on a method that claims half of each frame."""
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: None)
     samples = _samples(tiny_train)
     gt = {_key(s["projected"], s["captured"]): s for s in samples}
 
@@ -209,7 +210,7 @@ def test_per_pair_distribution_worst_pair_and_claims_are_hand_computed(tiny_trai
 def test_limit_spreads_samples_and_no_reference_runs_baselines_only(tiny_train, tmp_path, monkeypatch):
     assert sample_indices(16, 4) == [0, 5, 10, 15]
     assert sample_indices(3, 10) == [0, 1, 2]
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: None)
     out = tmp_path / "b.json"
     result = _cli("bench", "--data", tiny_train, "--baselines", "dis-fast", "--limit", "4", "--json", out, "-q")
     assert result.exit_code == 0, (result.stderr, result.exception)
@@ -219,14 +220,14 @@ def test_limit_spreads_samples_and_no_reference_runs_baselines_only(tiny_train, 
     (r,) = rep["results"]
     assert r["name"] == "dis-fast" and r["images"] == 4
     acc = EPEAccumulator()
-    predict = projreg.evaluation.bench.baseline_method("dis-fast").predict
+    predict = projreg.evaluation.methods.baseline_method("dis-fast").predict
     for s in _samples(tiny_train, [0, 5, 10, 15]):
         acc.add(as_prediction(predict(s["projected"], s["captured"])).flow, s["flow"], s["valid"])
     assert r["epe"] == pytest.approx(acc.result()["epe"], rel=1e-9)
 
 
 def test_shipped_reference_is_benchmarked_without_model(tiny_train, tiny_ckpt, monkeypatch):
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: tiny_ckpt)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: tiny_ckpt)
     rep = run_bench(tiny_train, baselines=[], limit=2, device=CPU)
     assert rep["reference_model"] == str(tiny_ckpt)
     assert [(r["name"], r["kind"]) for r in rep["results"]] == [("reference", "model")]
@@ -359,7 +360,7 @@ def test_track_needs_sequences_and_the_refinement(tiny_train, tiny_sequences, ti
 
 
 def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path, monkeypatch):
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: None)
     out = tmp_path / "t.json"
     options = "--baselines dis-fast --track --compensation --limit 1".split()
     result = _cli("bench", "--data", tiny_sequences, *options, "--json", out, "-q")
@@ -375,7 +376,7 @@ def test_track_cli_with_compensation_scores_every_frame(tiny_sequences, tmp_path
 def test_refine_only_is_a_baseline_row_beside_sift(tiny_train, monkeypatch):
     """`--baselines sift-ransac,refine-only`: the refinement without the network is a baseline row
     (never gated), with the pixels it claims; its SIFT start is the sift-ransac row's homography."""
-    monkeypatch.setattr(projreg.evaluation.bench, "reference_checkpoint", lambda: None)
+    monkeypatch.setattr(projreg.evaluation.methods, "reference_checkpoint", lambda: None)
     rep = run_bench(tiny_train, baselines=parse_baselines("sift-ransac,refine-only"), device=CPU)
     rows = {r["name"]: r for r in rep["results"]}
     assert list(rows) == ["sift-ransac", "refine-only"]
@@ -387,13 +388,13 @@ def test_refine_only_is_a_baseline_row_beside_sift(tiny_train, monkeypatch):
 def test_batches_of_samples_change_no_flow(tiny_train, tiny_ckpt, monkeypatch):
     """``--batch-size``: the network runs on several samples per call; every figure stays the same."""
     calls = []
-    flows_resized = projreg.evaluation.bench.flows_resized
+    flows_resized = projreg.evaluation.methods.flows_resized
 
     def counting(net, pairs, max_side, batch_size=1):
         calls.append((len(pairs), batch_size))
         return flows_resized(net, pairs, max_side, batch_size)
 
-    monkeypatch.setattr(projreg.evaluation.bench, "flows_resized", counting)
+    monkeypatch.setattr(projreg.evaluation.methods, "flows_resized", counting)
     one = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=5, refine="both", device=CPU)
     calls.clear()
     three = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=5, refine="both", device=CPU, batch_size=3)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-import projreg.refine as refine_module
+import projreg.refine.refiner as refine_module
 from projreg import ProjregError
 from projreg.evaluation.baselines import SiftRansac
 from projreg.geometry.frames import resize_flow, shrink

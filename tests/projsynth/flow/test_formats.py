@@ -318,19 +318,6 @@ def test_docstring_examples():
     assert doctest.testmod(flowio).failed == 0
 
 
-def test_write_atomic_all_writes_every_file_or_none(tmp_path):
-    blocker = tmp_path / "blocker"
-    blocker.write_bytes(b"a file where a folder is needed")
-    good, bad = tmp_path / "sub" / "a.json", blocker / "b.md"
-    with pytest.raises(ProjsynthError, match=rf"^{bad}: cannot write"):
-        flowio.write_atomic_all([(good, b"first"), (bad, b"second")], make_parents=True)
-    assert not good.exists() and [p.name for p in (tmp_path / "sub").iterdir()] == []  # no temporary left
-    with pytest.raises(ProjsynthError, match="new"):  # folders are made only when asked
-        flowio.write_atomic_all([(tmp_path / "new" / "x", b"")])
-    flowio.write_atomic_all([(good, b"first"), (tmp_path / "c.md", b"second")])
-    assert good.read_bytes() == b"first" and (tmp_path / "c.md").read_bytes() == b"second"
-
-
 def test_extra_header_attributes_round_trip_and_cannot_replace_the_format_ones():
     flow = np.zeros((2, 3, 2), np.float32)
     data = encode_flow_exr(flow, np.ones((2, 3), bool), "s0", attrs={"registered": "no", "sample_id": "evil"})
