@@ -24,11 +24,11 @@ GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
 TABLE_METRICS = (("EPE", "epe"), *((b, b) for b in BUCKETS))
 
 
-RATIO_LIMIT = 1.5  # issue 16: per pair, a model's EPE on its claimed pixels <= 1.5x the best baseline's
+RATIO_LIMIT = 1.5  # per pair, a model's EPE on its claimed pixels should be <= 1.5x the best baseline's
 
 
 def versus_baselines(results: Sequence[dict], ratio_limit: float = RATIO_LIMIT) -> dict[str, dict]:
-    """Each model against the best baseline *of each pair* (issue 16's targets), keyed by model name.
+    """Each model against the best baseline *of each pair* (the pair-by-pair target), keyed by model name.
 
     Per pair, the best baseline is the one with the lowest EPE on the pixels it claims (a baseline
     that claims nothing on a pair, such as a failed ``sift-ransac``, does not compete there). A

@@ -103,9 +103,8 @@ class RefineConfig:
 # homography alone instead of eight and their homographies), without the detail level, the periodicity
 # test, the albedo images and the bridge (7 ms more than its 44 ms of refinement per pair, for 0.3
 # points of claims on validation), on the pair shrunk to 256 px with the pixel parameters halved
-# (windows, thresholds, fit points for a 384 x 512 pair; its contrast window, 8 px, is half the
-# full-size default before session 9, as measured);
-# docs/history/2026-11-log.md ("Inference latency")
+# (windows, thresholds, fit points for a 384 x 512 pair; its contrast window is 8 px, as measured:
+# docs/history/2026-11-log.md, "Inference latency")
 FAST_REFINE = RefineConfig(
     plain_pass=False,
     identity_pass=False,

@@ -66,7 +66,7 @@ def write_shard(path: Path, samples: list[Sample], attrs: dict) -> None:
 
     HDF5 builds the file in memory and Python writes it out, so a full disk or an unwritable directory
     is an ordinary OSError: HDF5 never holds a file whose writes failed (on disk, its objects outlived
-    the failed close and crashed the interpreter at exit, issue 17). Whatever stops the write, the
+    the failed close and crashed the interpreter at exit). Whatever stops the write, the
     temporary file is removed and no ``shard-NNNNN.h5`` appears.
 
     Raises:
