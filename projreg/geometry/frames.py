@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from ..prediction import Prediction
+from .warp import pixel_maps
 
 Register = Callable[[np.ndarray, np.ndarray], "np.ndarray | Prediction"]
 
@@ -71,8 +72,7 @@ def resize_flow(flow: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def _grid(h: int, w: int) -> np.ndarray:
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    return np.stack([xs, ys], -1)  # [H, W, 2]
+    return np.stack(pixel_maps(h, w), -1)  # [H, W, 2] (x, y)
 
 
 def flow_to_captured(flow: np.ndarray, scale: tuple[float, float]) -> np.ndarray:

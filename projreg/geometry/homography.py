@@ -12,6 +12,8 @@ import math
 import cv2
 import numpy as np
 
+from .warp import pixel_maps
+
 
 def proper_homography(H: np.ndarray, height: int, width: int) -> bool:
     """Whether ``H`` keeps the whole ``height x width`` frame on one side of the line at infinity."""
@@ -27,7 +29,7 @@ def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:
     Returns:
         float32 ``(height, width, 2)``, forward, projected -> captured, pixels.
     """
-    y, x = np.mgrid[0:height, 0:width].astype(np.float64)  # [H, W] each
+    x, y = (c.astype(np.float64) for c in pixel_maps(height, width))  # [H, W] each
     q = np.stack([x, y, np.ones_like(x)], axis=-1) @ np.asarray(H, np.float64).T  # [H, W, 3]
     flow = q[..., :2] / q[..., 2:] - np.stack([x, y], axis=-1)  # [H, W, 2]
     return flow.astype(np.float32)

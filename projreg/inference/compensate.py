@@ -19,6 +19,7 @@ from projsynth.flow.formats import read_flow_exr
 from projsynth.utils.images import load_image
 
 from .. import ProjregError
+from ..geometry.warp import pixel_maps
 from .outputs import guard_outputs, require_suffix, write_png
 from .radiometric import CLIPPED_SHARE, calibrate, solve
 
@@ -56,7 +57,7 @@ def compensate(
             "flow has no finite valid vector inside the camera frame: nothing to compensate; check the flow file"
         )
     ch, cw = content.shape[:2]
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    xs, ys = pixel_maps(h, w)
     flow = np.where(valid[..., None], flow, 0).astype(np.float32)
     # camera position in content pixels (pixel centres at integers in both frames)
     mx = (xs + flow[..., 0] + 0.5) * (cw / cam_w) - 0.5
@@ -71,7 +72,7 @@ def lands_in_frame(flow: np.ndarray, valid: np.ndarray, camera_size: tuple[int, 
     at integers: positions in ``[-0.5, Wc - 0.5] x [-0.5, Hc - 0.5]``); elsewhere a projector pixel has
     no camera pixel to take its content from."""
     h, w = valid.shape
-    ys, xs = np.mgrid[0:h, 0:w]
+    xs, ys = pixel_maps(h, w)
     with np.errstate(invalid="ignore", over="ignore"):
         x, y = xs + flow[..., 0].astype(np.float64), ys + flow[..., 1].astype(np.float64)
         inside = (x >= -0.5) & (x <= camera_size[1] - 0.5) & (y >= -0.5) & (y <= camera_size[0] - 0.5)
