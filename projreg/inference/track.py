@@ -7,7 +7,7 @@ need not be registered from scratch:
    the network and the geometric refinement, :mod:`projreg.refine`).
 2. Every other frame is the geometric refinement from the previous frame's flow instead of the
    network's (``GeometricRefiner.predict_info`` with ``identity=False``): the homography fitted to
-   it, DIS residuals, the smooth surface model, on normalised and plain images, the better scored.
+   it, DIS residuals, the smooth surface model, on normalised, plain and albedo images, the best scored.
    The network does not run. Nothing accumulates from frame to frame but the starting homography:
    the flow is measured afresh on the frame's images.
 3. The tracked flow's score (the refinement's texture-weighted local NCC) is compared with the score

@@ -35,7 +35,7 @@ images:
    part's plane is a better start for the part the first answer missed.
 
 The spline cannot follow a fold or an occlusion edge sharper than its control spacing (a third of the
-frame's width); docs/model.md gives the measured effect of each step.
+frame's width); docs/model.md describes each step and what it is for.
 
 Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pixels:
 ``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
@@ -398,8 +398,7 @@ class GeometricRefiner:
         In a flat gap the answer is the surface model's interpolation; where the plane of the verified
         region says the same, two models of the gap agree and the gap is claimed. Where the surface bends
         away from that plane, or the answer is held to a guess (a region farther from texture than
-        ``support_margin``), they part and the claim stays with the checks. On a development rendering of
-        the real pictures: claimed 67.2 -> 69.7 %, worst claimed pair unchanged (docs/model.md)."""
+        ``support_margin``), they part and the claim stays with the checks (docs/model.md, "The bridge")."""
         cfg, (h, w) = self.config, flow.shape[:2]
         claimed = conf >= CONFIDENT
         fit = fit_homography(
@@ -450,7 +449,7 @@ class GeometricRefiner:
         where its own local NCC is within ``rival_margin`` of the winner's ``ncc`` there. Two answers
         that both explain a neighbourhood (a repeating pattern) leave it ambiguous; a rival that fails
         there (a candidate whose residual did not converge on that part of the frame) is just wrong
-        there and took 2 points of claimed share from the development rig (docs/model.md). ``memo``: as
+        there, and is not counted (docs/model.md, "Confidence"). ``memo``: as
         in :meth:`confidence`."""
         cfg, flow = self.config, cands[best]
         memo = {} if memo is None else memo
