@@ -121,6 +121,14 @@ def is_rank0() -> bool:
     return os.environ.get("RANK", "0") == "0"
 
 
+# OpenMP workers (torch's, numba's) that sleep when idle instead of spinning: on a machine another job
+# shares, spinning threads steal the cores their peers wait for. Measured on the 2-core VM, the reference
+# network's forward pass at 384 x 512: idle 657 ms spinning, 746 ms passive (+14 %); beside another torch
+# job 1.85-2.35 s spinning, 1.12-1.51 s passive (docs/design.md, "Threads on a shared machine"). A user's
+# own OMP_WAIT_POLICY wins.
+WAIT_POLICY = "PASSIVE"
+
+
 def run_console(application: typer.Typer, prog: str) -> None:
     """Run a Typer app as a console command whose usage errors are one line too.
 
@@ -128,6 +136,7 @@ def run_console(application: typer.Typer, prog: str) -> None:
     box; here it is ``PROG: error: MESSAGE; see `PROG COMMAND --help``` and exit 2, like every other
     error of these tools.
     """
+    os.environ.setdefault("OMP_WAIT_POLICY", WAIT_POLICY)  # before torch's OpenMP runtime loads
     use_available_cores()
     try:
         code = application(prog_name=prog, standalone_mode=False)
