@@ -12,8 +12,8 @@ bf16 and, given ``--onnx`` (a graph of the reference, ``projreg export --onnx``)
 and 8 (8 at the smaller size only: the global softmaxes hold (H W / 64)^2 floats per pair, 0.6 GB at
 768 x 1024). Median of ``--repeats`` calls after one warm-up call; ms per pair = call / batch.
 
-``fast``: each inference option on the samples of a dataset: EPE (pooled over valid pixels, px) and
-median ms per pair, network and refinement timed apart.
+``fast``: the network alone and each quality of the dial (``--quality``) on the samples of a dataset:
+EPE (pooled over valid pixels, px) and median ms per pair, network and refinement timed apart.
 
 ``graphs``: ONNX graphs of one network (e.g. exported before and after a change) in onnxruntime,
 interleaved A, B, A, B on one random pair so that a shared machine's load falls on all alike: median
@@ -33,10 +33,10 @@ import numpy as np
 import torch
 
 from projreg.evaluation.metrics import EPEAccumulator, sample_indices
-from projreg.inference.runtime import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized
+from projreg.inference.runtime import OnnxNetwork, TorchNetwork, flows_resized
 from projreg.model.checkpoint import load_model, reference_checkpoint
 from projreg.model.net import build_model
-from projreg.refine.config import FAST_REFINE, RefineConfig
+from projreg.refine.config import QUALITIES
 from projreg.refine.refiner import GeometricRefiner
 from projsynth.dataset.plan import parse_size
 from projsynth.dataset.shards import ShardReader
@@ -102,21 +102,12 @@ def fast(args: argparse.Namespace) -> None:
     nets = {"torch": TorchNetwork(load_model(reference_checkpoint(), CPU), CPU)} if "torch" in runtimes else {}
     if args.onnx and "onnxruntime" in runtimes:
         nets["onnxruntime"] = OnnxNetwork(args.onnx, CPU)
-    # (label, backend, network max side, refinement or None); "one": the one candidate at the pair's
-    # own size, the fast path's refinement before session 9 (with the network at 256 px then)
-    one = RefineConfig(plain_pass=False, identity_pass=False, sift_pass=False)
-    refiners = {"full": GeometricRefiner(), "one": GeometricRefiner(one), "fast": GeometricRefiner(FAST_REFINE)}
-    fast = f"network at {FAST_MAX_SIDE} px + one-candidate refinement at {FAST_REFINE.max_side} px (--fast)"
-    options = [
-        ("network alone", "torch", 1024, None),
-        ("network alone", "onnxruntime", 1024, None),
-        ("network + refinement (default)", "onnxruntime", 1024, "full"),
-        ("network + one-candidate refinement", "onnxruntime", 1024, "one"),
-        ("network at 256 px + one-candidate refinement (--fast before session 9)", "onnxruntime", 256, "one"),
-        (f"network at {FAST_MAX_SIDE} px alone", "onnxruntime", FAST_MAX_SIDE, None),
-        (fast, "torch", FAST_MAX_SIDE, "fast"),
-        (fast, "onnxruntime", FAST_MAX_SIDE, "fast"),
-    ]
+    # (label, backend, network max side, refinement or None): the network alone, then each quality
+    refiners = {name: GeometricRefiner(q.refine) for name, q in QUALITIES.items()}
+    options = [("network alone", backend, 1024, None) for backend in ("torch", "onnxruntime")]
+    for name, q in QUALITIES.items():
+        options += [(f"network at {q.network_side} px alone", "onnxruntime", q.network_side, None)]
+        options += [(f"--quality {name}", backend, q.network_side, name) for backend in ("torch", "onnxruntime")]
     options = [o for o in options if o[1] in nets]
     indices = sample_indices(len(reader), args.limit)
     samples = [reader.read(k) for k in indices]

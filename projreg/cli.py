@@ -265,7 +265,17 @@ def export(
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
 PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
 BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
-FAST_HELP = "Fast path: the network, then the refinement from its hypothesis only, both at <= 256 px."
+QUALITY_HELP = (
+    "fast, default or best: where the network runs and how far the refinement searches (docs/model.md, 'Quality')."
+)
+FAST_HELP = "The same as --quality fast."
+
+
+def _quality(quality: str, fast: bool) -> str:
+    """``--quality``, with ``--fast`` as its alias for ``fast``."""
+    if fast and quality not in ("default", "fast"):
+        raise ProjregError(f"--fast is --quality fast; drop one of --fast and --quality {quality}")
+    return "fast" if fast else quality
 
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
@@ -315,6 +325,7 @@ def bench(
     batch_size: Annotated[
         int, typer.Option(help="Samples per network call (pairs of one size are batched).", metavar="N")
     ] = 1,
+    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|default|best")] = "default",
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
@@ -363,7 +374,7 @@ def bench(
                 device=device,
                 precision=precision,
                 backend=backend,
-                fast=fast,
+                quality=_quality(quality, fast),
                 compensation=compensation,
                 photometric=photometric,
                 sheet=rows,
@@ -425,6 +436,7 @@ def predict(
     batch_size: Annotated[
         int, typer.Option(help="Pairs per network call in folder mode (pairs of one size are batched).", metavar="N")
     ] = 1,
+    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|default|best")] = "default",
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     quiet: Quiet = False,
 ) -> None:
@@ -446,7 +458,7 @@ def predict(
                 precision=precision,
                 backend=backend,
                 batch_size=batch_size,
-                fast=fast,
+                quality=_quality(quality, fast),
                 progress=bar.done,
                 max_flow=max_flow,
                 track=track,

@@ -36,7 +36,7 @@ from .. import ProjregError
 from ..geometry.homography import SiftHomography, homography_flow
 from ..geometry.images import to_gray
 from ..prediction import Prediction
-from ..refine.config import RefineConfig
+from ..refine.config import BEST
 from ..refine.refiner import GeometricRefiner
 
 
@@ -126,14 +126,18 @@ class SiftRansac(_OpenCVBaseline):
         return np.zeros((h, w, 2), np.float32) if H is None else homography_flow(H, h, w)
 
 
+_WITHOUT_SIFT = BEST.with_sections(search={"sift": False})
+
+
 class RefineOnly:
-    """The refinement started without the network: from the identity and from a SIFT homography."""
+    """The refinement started without the network: from the identity and from a SIFT homography (the
+    ``best`` quality's search, whose own SIFT start would repeat this one)."""
 
     name = "refine-only"
 
     def __init__(self, equalize: bool = False) -> None:
         self._sift = SiftRansac(equalize)
-        self._refiner = GeometricRefiner(RefineConfig(sift_pass=False))  # its SIFT start comes from here
+        self._refiner = GeometricRefiner(_WITHOUT_SIFT)  # its SIFT start comes from here
 
     def predict(self, projected: np.ndarray, captured: np.ndarray) -> Prediction:
         """The refined flow with the pixels it claims (:meth:`GeometricRefiner.predict`)."""

@@ -129,7 +129,7 @@ def run_bench(
     device: torch.device | str | None = None,
     precision: str = "fp32",
     backend: str = "torch",
-    fast: bool = False,
+    quality: str = "default",
     compensation: bool = False,
     photometric: bool = False,
     sheet: list[np.ndarray] | None = None,
@@ -152,7 +152,8 @@ def run_bench(
         device: where models run (``cpu``, ``cuda``, ``cuda:N``); default CUDA when available, else CPU.
         precision, backend: how models run (``fp32``/``bf16``/``fp16``, ``torch``/``onnxruntime``:
             :func:`projreg.inference.runtime.open_network`).
-        fast: ``predict --fast``'s path for every model (network at ``FAST_MAX_SIDE``, ``FAST_REFINE``).
+        quality: the quality setting of every model (:data:`projreg.refine.config.QUALITIES`: where the
+            network runs and how the refinement searches).
         compensation: also judge each method's compensation by what the camera sees
             (``comp_psnr``, ``comp_ssim`` and an ``uncompensated`` row; :mod:`projreg.evaluation.closedloop`).
         photometric: with ``compensation``, also geometric-only vs geometric + photometric against the
@@ -177,7 +178,7 @@ def run_bench(
         raise ProjregError(f"--data {data}: {e}") from e
     try:
         indices = _bench_indices(reader, data, track, limit)
-        run = ModelRun(refine, device, precision, backend, fast, track, batch_size)
+        run = ModelRun(refine, device, precision, backend, quality, track, batch_size)
         methods, reference = resolve_methods(models, baselines, run, equalize)
         methods += list(extra_methods)
         if not methods:
@@ -331,5 +332,3 @@ def check_outputs(data: Path, models: Sequence[Path], outputs: Sequence[tuple[st
         refuse_overwriting_inputs(outputs, inputs)
     except ProjsynthError as e:
         raise ProjregError(str(e)) from None
-
-

@@ -3,7 +3,6 @@ calls) and each classical baseline as a :class:`Method` with its own timing."""
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,11 +11,11 @@ import numpy as np
 import torch
 
 from .. import ProjregError
-from ..inference.runtime import FAST_MAX_SIDE, flows_resized, open_network
+from ..inference.runtime import flows_resized, open_network
 from ..inference.track import FlowTracker, Tracker
 from ..model.checkpoint import reference_checkpoint, resolve_checkpoint
 from ..prediction import Prediction
-from ..refine.config import FAST_REFINE
+from ..refine.config import quality
 from ..refine.refiner import GeometricRefiner
 from .baselines import make_baseline
 
@@ -54,9 +53,10 @@ class ModelRun:
     ``refine`` (``REFINE_MODES``): ``"on"``, the network then the geometric refinement; ``"off"``, the
     network alone; ``"both"``, the refined method named ``name`` and the network alone named
     ``name-raw``. ``device``, ``precision`` and ``backend`` say where and how the network runs
-    (:func:`projreg.inference.runtime.open_network`; ``backend="onnxruntime"`` takes a ``.onnx`` file); ``fast`` is
-    ``predict --fast``'s path (the network at ``FAST_MAX_SIDE``, the refinement ``FAST_REFINE``; names
-    end in ``-fast``). ``track``: also the refined method tracking (:class:`~projreg.inference.track.Tracker`),
+    (:func:`projreg.inference.runtime.open_network`; ``backend="onnxruntime"`` takes a ``.onnx`` file); ``quality``
+    names the setting of :data:`projreg.refine.config.QUALITIES` (the network's side and the refinement;
+    names end in ``-fast`` or ``-best`` for those two). ``track``: also the refined method tracking
+    (:class:`~projreg.inference.track.Tracker`),
     named ``name+track``; ``batch_size`` > 1: the methods get a ``prefetch`` (:class:`BatchedFlows`)
     shared between them.
     """
@@ -65,22 +65,23 @@ class ModelRun:
     device: torch.device | str | None = None
     precision: str = "fp32"
     backend: str = "torch"
-    fast: bool = False
+    quality: str = "default"
     track: bool = False
     batch_size: int = 1
 
 
 def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun()) -> list[Method]:
     """A checkpoint as methods named ``name`` (default: the file stem), run as ``run`` says (:class:`ModelRun`)."""
-    refine, track, fast, batch_size = run.refine, run.track, run.fast, run.batch_size
+    refine, track, batch_size = run.refine, run.track, run.batch_size
+    setting = quality(run.quality)
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
     if track and refine == "off":
         raise ProjregError("--track follows each frame with the refinement; use --refine on or both")
     net = open_network(path, backend=run.backend, device=run.device, precision=run.precision)
-    name = (name or Path(path).stem) + ("-fast" if fast else "")
-    refiner = GeometricRefiner(FAST_REFINE if fast else None)
-    max_side = FAST_MAX_SIDE if fast else sys.maxsize
+    name = (name or Path(path).stem) + ("" if setting.name == "default" else f"-{setting.name}")
+    refiner = GeometricRefiner(setting.refine)
+    max_side = setting.network_side
     batched = BatchedFlows(net, max_side, batch_size) if batch_size > 1 else None
 
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:

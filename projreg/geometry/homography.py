@@ -12,8 +12,6 @@ import math
 import cv2
 import numpy as np
 
-from .warp import pixel_maps
-
 
 def proper_homography(H: np.ndarray, height: int, width: int) -> bool:
     """Whether ``H`` keeps the whole ``height x width`` frame on one side of the line at infinity."""
@@ -29,10 +27,14 @@ def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:
     Returns:
         float32 ``(height, width, 2)``, forward, projected -> captured, pixels.
     """
-    x, y = (c.astype(np.float64) for c in pixel_maps(height, width))  # [H, W] each
-    q = np.stack([x, y, np.ones_like(x)], axis=-1) @ np.asarray(H, np.float64).T  # [H, W, 3]
-    flow = q[..., :2] / q[..., 2:] - np.stack([x, y], axis=-1)  # [H, W, 2]
-    return flow.astype(np.float32)
+    H = np.asarray(H, np.float64)
+    x = np.arange(width, dtype=np.float64)[None, :]  # [1, W]
+    y = np.arange(height, dtype=np.float64)[:, None]  # [H, 1]
+    den = H[2, 0] * x + (H[2, 1] * y + H[2, 2])  # [H, W]
+    flow = np.empty((height, width, 2), np.float32)
+    flow[..., 0] = (H[0, 0] * x + (H[0, 1] * y + H[0, 2])) / den - x
+    flow[..., 1] = (H[1, 0] * x + (H[1, 1] * y + H[1, 2])) / den - y
+    return flow
 
 
 def fit_step(h: int, w: int, points: int) -> int:
@@ -125,7 +127,6 @@ def area_ratio(H: np.ndarray, h: int, w: int) -> float:
     corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], np.float64)
     det = np.linalg.det(np.asarray(H, np.float64)) / (corners @ np.asarray(H, np.float64)[2]) ** 3  # [4]
     return float(det.max() / det.min()) if (det > 0).all() else math.inf
-
 
 
 class SiftHomography:

@@ -141,6 +141,9 @@ def fit_detail(
     robust: float,
     block: int = 32,
     gain: float = 0.05,
+    ridge: float = 1e-3,
+    iterations: int = 3,
+    fade: tuple[float, float] = (0.05, 0.3),
 ) -> tuple[np.ndarray, float | None]:
     """Surface detail finer than the coarse spline (a short-period bend), only where the data carry it.
 
@@ -150,7 +153,9 @@ def fit_detail(
     patches, so neighbouring pixels cannot vouch for each other) scores each against leaving the
     remainder alone. The winner must lower the held-out robust loss (texture-weighted Cauchy) by
     ``gain``; otherwise no detail is added. The detail fades out where ``weight`` has no data within
-    about half a knot spacing (a P-spline extrapolates its slopes; beyond the data that is a guess).
+    about half a knot spacing (a P-spline extrapolates its slopes; beyond the data that is a guess): it is
+    weighted by a ramp over ``fade`` of the texture density within that distance. ``ridge`` and
+    ``iterations`` are the solves' (:func:`fit_bspline`).
 
     Returns:
         ``(detail, bend)``: float32 ``(H, W, 2)`` (zeros when nothing wins) and the chosen penalty
@@ -169,13 +174,15 @@ def fit_detail(
     with one_blas_thread():
         losses = {None: held_out(0 * f, colour) + held_out(0 * f, ~colour)}
         for bend in bends:
-            fits = [design.at_samples(design.solve(f, w0 * ~m, robust, 1e-3, 3, bend)) for m in (colour, ~colour)]
+            fits = [
+                design.at_samples(design.solve(f, w0 * ~m, robust, ridge, iterations, bend)) for m in (colour, ~colour)
+            ]
             losses[bend] = held_out(fits[0], colour) + held_out(fits[1], ~colour)
         best = min(losses, key=losses.get)
         if best is None or losses[best] > (1 - gain) * losses[None]:
             return np.zeros_like(remainder, dtype=np.float32), None
     sigma = 0.5 * max(h / (grid[1] - 3), w / (grid[0] - 3))  # half a knot spacing, px
-    near_data = ramp(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma), 0.05, 0.3)
+    near_data = ramp(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma), *fade)
     with one_blas_thread():
-        detail = design.evaluate(design.solve(f, w0, robust, 1e-3, 3, best))
+        detail = design.evaluate(design.solve(f, w0, robust, ridge, iterations, best))
     return detail * near_data[..., None], best

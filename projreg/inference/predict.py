@@ -35,10 +35,10 @@ from .. import ProjregError
 from ..geometry.frames import register_any_size, resize_to
 from ..model.checkpoint import resolve_checkpoint
 from ..prediction import CONFIDENT, Prediction
-from ..refine.config import FAST_REFINE
+from ..refine.config import quality as resolve_quality
 from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
-from .runtime import FAST_MAX_SIDE, OnnxNetwork, TorchNetwork, flows_resized, open_network
+from .runtime import OnnxNetwork, TorchNetwork, flows_resized, open_network
 from .track import Tracker
 
 
@@ -137,7 +137,7 @@ def predict(
     precision: str = "fp32",
     backend: str = "torch",
     batch_size: int = 1,
-    fast: bool = False,
+    quality: str = "default",
     progress: Callable[[int, int], None] | None = None,
     max_flow: float | None = None,
     track: bool = False,
@@ -150,14 +150,15 @@ def predict(
         viz: colour PNG file (file mode) or folder (folder mode); None writes none.
         model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model; with
             ``backend="onnxruntime"`` a graph written by ``projreg export --onnx``.
-        max_side: longest side the network sees; larger pairs are resized (:func:`projreg.inference.runtime.shrink`).
+        max_side: longest side the network sees at most (also bounded by the quality's ``network_side``);
+            larger pairs are resized (:func:`projreg.inference.runtime.shrink`).
         refine: follow the network with the geometric refinement (``projreg.refine``), at the
             pair's own resolution; the EXR's ``valid`` is then its confidence >= ``CONFIDENT``.
         device, precision, backend: where and how the network runs (:func:`projreg.inference.runtime.open_network`);
             device None: CUDA when available, else the CPU.
         batch_size: pairs per network call (folder mode; pairs of one size are batched).
-        fast: the fast path: the network sees at most ``FAST_MAX_SIDE`` and the refinement keeps only
-            the network's hypothesis on normalised images (``refine.FAST_REFINE``).
+        quality: ``fast``, ``default`` or ``best`` (:data:`projreg.refine.config.QUALITIES`): the network's
+            side and how the refinement searches.
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flow.pictures.flow_picture``, with its legend).
@@ -168,6 +169,7 @@ def predict(
     """
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
+    setting = resolve_quality(quality)
     if batch_size < 1:
         raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
     if max_flow is not None:
@@ -191,9 +193,8 @@ def predict(
         + ([("--model", Path(weights))] if weights is not None else []),
     )
     net = open_network(weights, backend=backend, device=device, precision=precision)
-    if fast:
-        max_side = min(max_side, FAST_MAX_SIDE)
-    refiner = (GeometricRefiner(FAST_REFINE) if fast else GeometricRefiner()) if refine else None
+    max_side = min(max_side, setting.network_side)
+    refiner = GeometricRefiner(setting.refine) if refine else None
     if track:
         return _track(jobs, net, refiner, max_side, progress, max_flow)
     results = []
@@ -291,5 +292,3 @@ def _load(path: Path) -> np.ndarray:
         return load_image(path)
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-
-

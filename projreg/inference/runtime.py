@@ -33,7 +33,6 @@ Network = Callable[[np.ndarray, np.ndarray], np.ndarray]
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 BACKENDS = ("torch", "onnxruntime")
 EXTRA = "pip install 'projsynth[onnx]'"
-FAST_MAX_SIDE = 256  # ``--fast``: the network sees at most 192 x 256 of a 384 x 512 pair (docs/history/2026-11-log.md)
 
 
 def default_device() -> torch.device:

@@ -11,70 +11,80 @@ import cv2
 import numpy as np
 
 from ..geometry.images import ramp
+from .config import ConfidenceConfig
+
+SHRINK_FROM = 64  # a neighbourhood this wide (sigma, px) is averaged on a shrunk grid (exact to ~1 % of claims)
 
 
 def pixel_confidence(
-    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float
+    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float, cfg: ConfidenceConfig
 ) -> np.ndarray:
     """Per-pixel confidence of a flow in [0, 1]: checks on the textured pixels, spread to their
     neighbourhood (the smooth surface model interpolates between them), nothing far from texture.
 
-    Each textured pixel passes or fails three checks (the weakest counts): the photometric check
-    ``ncc``, local NCC between the projected image and the captured image warped back by the flow
-    (0 at <= 0.3, 1 at >= 0.6); ``residual`` (px), the larger of the DIS residual still measured on
-    the rectified pair and its forward-backward inconsistency (1 at <= 2 px, 0 at >= 4 px); and
-    ``spread`` (px), how far the candidates that scored almost as well lie from this flow (1 at <= 2
-    px, 0 at >= 4 px: two answers that explain the images equally well, as on a repetitive pattern,
-    leave the pixel ambiguous). The pass marks are averaged around every pixel at two scales, and the
-    larger counts (:func:`neighbourhood`): a Gaussian of sigma ``radius`` px, multiplied by how much
-    texture it holds (0 at a texture density <= 0.05, 1 at >= 0.2), and one of twice that sigma, which
-    asks for more texture (0 at <= 0.1): the coarse one carries the verdict across a flat gap between
-    verified textured regions, which the surface model interpolates; a flat region far from any
-    texture gets 0 whatever the flow.
+    Each textured pixel passes or fails three checks (the weakest counts, :func:`pass_marks`): the
+    photometric check ``ncc``, local NCC between the projected image and the captured image warped back
+    by the flow; ``residual`` (px), the larger of the DIS residual still measured on the rectified pair
+    and its forward-backward inconsistency; and ``spread`` (px), how far the candidates that scored
+    almost as well lie from this flow (two answers that explain the images equally well, as on a
+    repetitive pattern, leave the pixel ambiguous). The pass marks are averaged around every pixel at
+    two scales, and the larger counts (:func:`neighbourhood`): a Gaussian of sigma ``radius`` px,
+    multiplied by how much texture it holds (from ``cfg.sparse`` to ``cfg.dense``), and one of twice
+    that sigma, which asks for more texture (from ``cfg.coarse_sparse``): the coarse one carries the
+    verdict across a flat gap between verified textured regions, which the surface model interpolates;
+    a flat region far from any texture gets 0 whatever the flow.
 
     Args:
-        texture: the projected image's texture weight in [0, 1] (``refine.texture_weight`` with its
-            absolute floor), float ``(H, W)``.
+        texture: the projected image's texture weight in [0, 1] (absolute floor), float ``(H, W)``.
         ncc, residual, spread: float ``(H, W)`` as above.
         radius: Gaussian sigma of the fine neighbourhood, px.
+        cfg: the pass marks' break points and the densities.
 
     Returns:
-        float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``. The break points
-        were chosen on the validation split, the coarse scale on development sets (docs/model.md).
+        float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``.
     """
-    passed = pass_marks(ncc, residual, spread)
+    passed = pass_marks(ncc, residual, spread, cfg)
     w = np.asarray(texture, np.float32)
-    fine = neighbourhood(w, passed, radius, 0.05)
-    return np.maximum(fine, neighbourhood(w, passed, 2 * radius, 0.1)).astype(np.float32)
+    fine = neighbourhood(w, passed, radius, cfg.sparse, cfg.dense)
+    return np.maximum(fine, neighbourhood(w, passed, 2 * radius, cfg.coarse_sparse, cfg.dense)).astype(np.float32)
 
 
 def gap_confidence(
-    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float
+    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float, cfg: ConfidenceConfig
 ) -> np.ndarray:
     """The checks' verdict carried across a wide flat gap: the pass marks (:func:`pixel_confidence`'s
-    inputs) averaged at four times the sigma ``radius``, from a texture density of 0.1 (:func:`neighbourhood`).
+    inputs) averaged at four times the sigma ``radius``, from a texture density of ``cfg.coarse_sparse``.
 
-    Alone it would claim flat regions the surface model only guesses (on a development set of real
-    pictures one pair 15 px off at three times the sigma); ``refine`` uses it only where the answer also
-    agrees with the plane of its own claimed pixels, a second model of the gap (docs/model.md).
+    Alone it would claim flat regions the surface model only guesses; the refinement uses it only where
+    the answer also agrees with the plane of its own claimed pixels, a second model of the gap
+    (docs/model.md, "The bridge").
     """
-    passed = pass_marks(ncc, residual, spread)
-    return neighbourhood(np.asarray(texture, np.float32), passed, 4 * radius, 0.1)
+    passed = pass_marks(ncc, residual, spread, cfg)
+    return neighbourhood(np.asarray(texture, np.float32), passed, 4 * radius, cfg.coarse_sparse, cfg.dense)
 
 
-def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray) -> np.ndarray:
-    """Each pixel's pass mark in [0, 1]: the weakest of the three checks (:func:`pixel_confidence`)."""
-    return np.minimum.reduce([ramp(ncc, 0.3, 0.6), ramp(residual, 4.0, 2.0), ramp(spread, 4.0, 2.0)])
+def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
+    """Each pixel's pass mark in [0, 1]: the weakest of the three checks (:func:`pixel_confidence`), each a
+    ramp between its fail and pass values."""
+    return np.minimum.reduce(
+        [
+            ramp(ncc, cfg.ncc_fail, cfg.ncc_pass),
+            ramp(residual, cfg.residual_fail_px, cfg.residual_pass_px),
+            ramp(spread, cfg.spread_fail_px, cfg.spread_pass_px),
+        ]
+    )
 
 
-def neighbourhood(texture: np.ndarray, passed: np.ndarray, sigma: float, sparse: float) -> np.ndarray:
+def neighbourhood(
+    texture: np.ndarray, passed: np.ndarray, sigma: float, sparse: float, dense: float = 0.2
+) -> np.ndarray:
     """The ``passed`` marks (float ``(H, W)`` in [0, 1]) averaged around every pixel by a normalised
     convolution weighted by ``texture`` (Gaussian, ``sigma`` px), times how much texture the window
-    holds: 0 at a density <= ``sparse``, 1 at >= 0.2.
+    holds: 0 at a density <= ``sparse``, 1 at >= ``dense``.
 
-    A sigma of 64 px or more is applied on the grid shrunk ``sigma // 32`` times (area averages) and the
-    result brought back bilinearly: the map is smooth at that scale, and a full-size Gaussian that wide
-    took seconds on a 1080 x 1920 pair (claims moved on about 1 % of the pixels, at the 0.5 boundary).
+    A sigma of ``SHRINK_FROM`` px or more is applied on the grid shrunk ``sigma // (SHRINK_FROM / 2)``
+    times (area averages) and the result brought back bilinearly: the map is smooth at that scale, and
+    a full-size Gaussian that wide took seconds on a 1080 x 1920 pair.
 
     Example:
         >>> w = np.zeros((40, 40), np.float32); w[:, :20] = 1.0
@@ -83,11 +93,11 @@ def neighbourhood(texture: np.ndarray, passed: np.ndarray, sigma: float, sparse:
         (1.0, 0.0)
     """
     h, w = texture.shape
-    shrink = max(1, int(sigma // 32))
+    shrink = max(1, int(sigma // (SHRINK_FROM // 2)))
     small = (max(1, w // shrink), max(1, h // shrink))
     weights = [texture, texture * passed]
     if shrink > 1:
         weights = [cv2.resize(a, small, interpolation=cv2.INTER_AREA) for a in weights]
     density, agree = (cv2.GaussianBlur(a, (0, 0), sigma / shrink) for a in weights)
-    out = agree / np.maximum(density, 1e-6) * ramp(density, sparse, 0.2)
+    out = agree / np.maximum(density, 1e-6) * ramp(density, sparse, dense)
     return out if shrink == 1 else cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)

@@ -1,11 +1,15 @@
-"""The geometric refinement's settings (:class:`RefineConfig`, the fast path's :data:`FAST_REFINE`) and
-what one refinement reports about itself (:class:`RefineInfo`)."""
+"""The geometric refinement's settings: :class:`RefineConfig`, in sections (images, fit, surface,
+search, selection, confidence), and the three qualities of :data:`QUALITIES` (``fast``, ``default``,
+``best``) that ``predict --quality`` and ``bench --quality`` name.
+
+Every number the refinement uses is a field here, with one meaning each; a stage that can be left out
+has an on/off flag (no special values). docs/model.md explains each stage and the qualities' figures
+are in docs/results.md.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import numpy as np
+from dataclasses import dataclass, field, replace
 
 from .. import ProjregError
 
@@ -13,129 +17,188 @@ MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returne
 
 
 @dataclass(frozen=True)
-class RefineConfig:
-    """Parameters of :class:`GeometricRefiner` (defaults chosen on the validation split, docs/model.md).
+class ImagesConfig:
+    """The views of the pair the residuals are measured on and the evidence read from them."""
 
-    ``grid``: B-spline control points (x, y); ``ransac_px``/``refit_px``: inlier thresholds of the first
-    and the refitted homography; ``fit_points``: about how many grid correspondences the fits use;
-    ``robust_px``: Cauchy scale of the spline's reweighting; ``ridge``: Tikhonov weight that keeps
-    control points without texture under them at zero residual; ``ncc_sigma``: Gaussian window of the
-    selection score (always on normalised images); ``contrast_sigma``: Gaussian window of the local
-    contrast normalisation (0: none); ``plain_pass``: also try both hypotheses on the images without
-    normalisation (four candidates instead of two); ``identity_pass``: also start from the identity
-    (for pairs where the network is lost; without it, only when the network's flow has no homography);
-    ``sift_pass``: also start from a SIFT + RANSAC homography of the pair (``baselines.SiftRansac``),
-    when it finds one (for pairs where the network's hypothesis is wrong and the images' features
-    still match: on the issue-14 test split it turned one pair's 28 px into 2.4 px); ``detail_grid``:
-    the fine P-spline added to the coarse one where cross-validation says the residual carries finer
-    surface detail (:func:`fit_detail`, penalty weights ``detail_bends``; None: the coarse spline
-    only); ``periodic_peak`` and ``coarse_peak``: pixels where the projected image repeats itself
-    (:func:`repeating`: its 64 px window scores at least ``periodic_peak``, a 128 or 256 px window at
-    least ``coarse_peak``) are not claimed, whatever the checks say (``periodic_peak`` 1: no test);
-    ``albedo_window``: the median window (odd, px) of the wall's reflectance estimate
-    (:func:`divide_albedo`) under the albedo candidates' residual and in what the selection and the
-    checks compare (0: no albedo candidates, and the checks see the normalised captured image as it
-    is); ``max_side``: refine the pair shrunk to this longer side and bring the flow and the
-    confidence back to its own grid (None: at its own size; the pixel parameters are then in the
-    shrunk pair's pixels); ``plane_margin``: the best-scoring homography alone (SIFT's, or one
-    refitted from a hypothesis before its residual is added) wins the selection when its score is
-    within this margin of the best candidate's (:meth:`GeometricRefiner.select`); ``plane_agree_px``:
-    a refitted homography competes only where it stays within this distance of its candidate (the
-    homography plus the residual) on 90 % of the textured pixels (:func:`plane_agrees`);
-    ``grow_below``: when the answer claims less than this share of the frame, the homography of its
-    claimed pixels starts one more hypothesis (``"grown"``), which competes with the rest
-    (:meth:`GeometricRefiner.grown`; 0: never); ``bridge_px``: a registered answer also claims a wide flat
-    gap between verified texture (:func:`projreg.refine.confidence.gap_confidence`) where it stays within this
-    distance of the homography of its own claimed pixels (:meth:`GeometricRefiner.bridged`; 0: never).
-    """
-
-    grid: tuple[int, int] = (6, 5)
-    ransac_px: float = 2.0
-    refit_px: float = 1.0
-    fit_points: int = 12288
-    robust_px: float = 1.0
-    ridge: float = 1e-3
-    irls_iterations: int = 3
-    ncc_sigma: float = 7.0
-    contrast_sigma: float = 8.0
-    plain_pass: bool = True
-    identity_pass: bool = True
-    sift_pass: bool = True
-    texture_floor: float = 256.0
-    min_evidence: float = 0.01
-    max_area_ratio: float = 6.0
-    min_hull: float = 0.02
-    free_px: float = 16.0
-    support_margin: float = 0.1
-    confidence_radius: float = 0.03
-    rival_margin: float = 0.05
-    detail_grid: tuple[int, int] | None = (14, 11)
-    detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)
-    periodic_peak: float = 0.85
-    coarse_peak: float = 0.93
-    albedo_window: int = 31
-    max_side: int | None = None
-    plane_margin: float = 0.005
-    plane_agree_px: float = 2.0
-    grow_below: float = 0.8
-    bridge_px: float = 1.0
-
-    def __post_init__(self) -> None:
-        if min(self.grid) < 4:
-            raise ProjregError(f"refine grid must have at least 4 x 4 control points, got {self.grid}")
-        for name in ("ransac_px", "refit_px", "robust_px", "ncc_sigma"):
-            if not getattr(self, name) > 0:
-                raise ProjregError(f"refine {name} must be > 0, got {getattr(self, name)}")
-        if self.max_side is not None and self.max_side < MIN_SIDE:
-            raise ProjregError(f"refine max_side must be >= {MIN_SIDE}, got {self.max_side}")
-        if self.albedo_window and (self.albedo_window < 3 or self.albedo_window % 2 == 0):
-            raise ProjregError(f"refine albedo_window must be 0 (off) or an odd number >= 3, got {self.albedo_window}")
-        if not 0 <= self.grow_below <= 1:
-            raise ProjregError(f"refine grow_below must be in [0, 1] (0: never), got {self.grow_below}")
-        for name in ("plane_margin", "plane_agree_px", "bridge_px"):
-            if not getattr(self, name) >= 0:
-                raise ProjregError(f"refine {name} must be >= 0, got {getattr(self, name)}")
-        if not self.contrast_sigma >= 0:
-            raise ProjregError(f"refine contrast_sigma must be >= 0 (0: no normalisation), got {self.contrast_sigma}")
-
-
-# ``predict --fast``: the network's hypothesis on normalised images only (one candidate and its
-# homography alone instead of eight and their homographies), without the detail level, the periodicity
-# test, the albedo images and the bridge (7 ms more than its 44 ms of refinement per pair, for 0.3
-# points of claims on validation), on the pair shrunk to 256 px with the pixel parameters halved
-# (windows, thresholds, fit points for a 384 x 512 pair; its contrast window is 8 px, as measured:
-# docs/history/2026-11-log.md, "Inference latency")
-FAST_REFINE = RefineConfig(
-    plain_pass=False,
-    identity_pass=False,
-    sift_pass=False,
-    max_side=256,
-    contrast_sigma=8.0,
-    ncc_sigma=3.5,
-    ransac_px=1.0,
-    refit_px=0.5,
-    robust_px=0.5,
-    free_px=8.0,
-    fit_points=3072,
-    detail_grid=None,
-    periodic_peak=1.0,
-    albedo_window=0,
-    bridge_px=0.0,
-)
+    max_side: int | None = None  # refine the pair shrunk to this longer side (None: its own size)
+    contrast_sigma: float = 8.0  # Gaussian window (px) of the local contrast normalisation
+    plain: bool = True  # also measure residuals on the gray images without normalisation
+    albedo: bool = True  # also measure them with the wall's reflectance divided out (divide_albedo)
+    albedo_window: int = 31  # median window (odd, px) of the reflectance estimate
+    texture_floor: float = 256.0  # gradient energy that counts as texture however flat the frame (64 g^2)
+    texture_sigma: float = 3.0  # Gaussian window (px) of the gradient energy
+    textured_at: float = 0.5  # texture weight from which a pixel counts as textured
+    textureless_below: float = 0.01  # a pair whose textured share is below this is not registered
 
 
 @dataclass(frozen=True)
-class RefineInfo:
-    """What :meth:`GeometricRefiner.refine` chose: ``hypothesis`` ("network", "identity", "sift", "grown",
-    "none" for a textureless pair or "skipped"), ``images`` ("normalised", "plain" or "albedo": the gray images the
-    residual was measured on; "homography": a homography unrefined, SIFT's or, for a pair nothing verifies,
-    the one fitted to the network's flow), the selection score of every candidate tried, keyed
-    ``"HYPOTHESIS/IMAGES"`` (texture-weighted mean local NCC, in [-1, 1]), the per-pixel ``confidence``
-    (float32 ``(H, W)`` in [0, 1]) and ``evidence``, the share of the frame where the projected image has
-    texture."""
+class FitConfig:
+    """The projective fits: the starts' homographies and their refits."""
 
-    hypothesis: str
-    images: str
-    scores: dict[str, float]
-    confidence: np.ndarray
-    evidence: float
+    ransac_px: float = 2.0  # inlier threshold of the homography fitted to a start's flow
+    refit_px: float = 1.0  # inlier threshold of the homography refitted to model + residual
+    fit_points: int = 12288  # about how many grid correspondences a fit uses
+    max_area_ratio: float = 6.0  # a fit whose local area scale varies more over the frame is refused
+    min_hull: float = 0.02  # a fit whose inliers' hull covers less of the frame is refused
+
+
+@dataclass(frozen=True)
+class SurfaceConfig:
+    """The smooth surface model fitted to the residual (coarse B-spline, optional fine P-spline)."""
+
+    grid: tuple[int, int] = (6, 5)  # coarse control points (x, y)
+    robust_px: float = 1.0  # Cauchy scale of the reweighting, px
+    ridge: float = 1e-3  # Tikhonov weight keeping control points without texture at zero residual
+    iterations: int = 3  # weighted solves (the first without residual weights)
+    detail: bool = True  # add the fine P-spline where cross-validation says the residual carries detail
+    detail_grid: tuple[int, int] = (14, 11)  # its control points (x, y)
+    detail_bends: tuple[float, ...] = (0.3, 3.0, 30.0)  # its second-difference penalties tried
+    detail_block: int = 32  # checkerboard block (px) of its two-fold cross-validation
+    detail_gain: float = 0.05  # held-out loss it must save, as a share of leaving the remainder alone
+    detail_fade: tuple[float, float] = (0.05, 0.3)  # texture density ramp where the detail fades out
+    support_margin: float = 0.1  # pixels farther than this share of the longer side from texture have no support
+    free_px: float = 16.0  # outside the support the answer stays within this distance of its start
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Which starts the refinement tries, and when it spends more."""
+
+    identity: bool = True  # also start from the identity (always when the network's flow has no homography)
+    sift: bool = True  # also start from a SIFT + RANSAC homography of the pair
+    sift_side: int = 512  # ... found on the pair shrunk to this longer side
+    first_views: tuple[str, ...] = ("normalised", "plain", "albedo")  # views the first stage refines on
+    escalate_below: float = 1.0  # the second stage (the identity and SIFT starts, the views not in
+    # first_views) runs only when the first stage's answer claims less than this share of the textured
+    # pixels (1.0: always, every start and view in one stage)
+    grow: bool = True  # a partial answer's verified plane starts one more hypothesis
+    grow_below: float = 0.8  # ... when the answer claims less than this share of the frame
+    workers: int = 1  # threads refining a stage's candidates side by side (OpenCV and numpy release the GIL)
+
+
+@dataclass(frozen=True)
+class SelectionConfig:
+    """How candidates are scored and one is chosen."""
+
+    ncc_sigma: float = 7.0  # Gaussian window (px) of the local NCC that scores a candidate
+    plane_margin: float = 0.005  # a homography alone wins when it scores within this of the best
+    plane_agree_px: float = 2.0  # ... and stays within this distance of its candidate
+    plane_agree_share: float = 0.9  # ... on this share of the textured pixels
+
+
+@dataclass(frozen=True)
+class ConfidenceConfig:
+    """The per-pixel checks, their pass marks, and the verdict."""
+
+    ncc_fail: float = 0.3  # local NCC at or below which a pixel fails the photometric check
+    ncc_pass: float = 0.6  # ... and at or above which it passes
+    residual_pass_px: float = 2.0  # forward-backward residual (px) at or below which a pixel passes
+    residual_fail_px: float = 4.0  # ... and at or above which it fails
+    spread_pass_px: float = 2.0  # distance to an equally good rival (px) at or below which a pixel passes
+    spread_fail_px: float = 4.0  # ... and at or above which it fails
+    rival_margin: float = 0.05  # a candidate scoring within this of the winner is a rival
+    radius: float = 0.03  # fine neighbourhood (share of the longer side) the pass marks are averaged over
+    sparse: float = 0.05  # texture density at which the fine neighbourhood starts to count
+    coarse_sparse: float = 0.1  # ... the coarse one (twice the radius) and the bridge's (four times)
+    dense: float = 0.2  # texture density at which a neighbourhood counts fully
+    registered_above: float = 0.01  # a pair whose claimed share is below this is not registered
+    periodic: bool = True  # refuse pixels where the projected image repeats itself
+    periodic_peak: float = 0.85  # autocorrelation peak (64 px windows) that marks a repeat
+    coarse_peak: float = 0.93  # ... in the 128 and 256 px windows
+    bridge: bool = True  # a registered answer also claims wide flat gaps where two models agree
+    bridge_px: float = 1.0  # ... within this distance of its claimed pixels' homography
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Parameters of :class:`~projreg.refine.refiner.GeometricRefiner`, by section (each field has its
+    one-line meaning in its section's class; defaults chosen on the validation split, docs/model.md)."""
+
+    images: ImagesConfig = field(default_factory=ImagesConfig)
+    fit: FitConfig = field(default_factory=FitConfig)
+    surface: SurfaceConfig = field(default_factory=SurfaceConfig)
+    search: SearchConfig = field(default_factory=SearchConfig)
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
+
+    def with_sections(self, **sections: dict) -> RefineConfig:
+        """This configuration with some fields of its sections replaced, e.g.
+        ``BEST.with_sections(search={"sift": False}, surface={"detail": False})``."""
+        return replace(self, **{name: replace(getattr(self, name), **fields) for name, fields in sections.items()})
+
+    def __post_init__(self) -> None:
+        im, fit, sf, se = self.images, self.fit, self.surface, self.search
+        if min(sf.grid) < 4 or min(sf.detail_grid) < 4:
+            raise ProjregError(f"refine grids need at least 4 x 4 control points, got {sf.grid}, {sf.detail_grid}")
+        positive = {
+            "fit.ransac_px": fit.ransac_px,
+            "fit.refit_px": fit.refit_px,
+            "surface.robust_px": sf.robust_px,
+            "selection.ncc_sigma": self.selection.ncc_sigma,
+            "images.contrast_sigma": im.contrast_sigma,
+            "confidence.radius": self.confidence.radius,
+        }
+        for name, value in positive.items():
+            if not value > 0:
+                raise ProjregError(f"refine {name} must be > 0, got {value}")
+        if im.max_side is not None and im.max_side < MIN_SIDE:
+            raise ProjregError(f"refine images.max_side must be >= {MIN_SIDE}, got {im.max_side}")
+        if im.albedo and (im.albedo_window < 3 or im.albedo_window % 2 == 0):
+            raise ProjregError(f"refine images.albedo_window must be an odd number >= 3, got {im.albedo_window}")
+        for name in ("grow_below", "escalate_below"):
+            if not 0 <= getattr(se, name) <= 1:
+                raise ProjregError(f"refine search.{name} must be in [0, 1], got {getattr(se, name)}")
+        if se.workers < 1:
+            raise ProjregError(f"refine search.workers must be >= 1, got {se.workers}")
+        for name in ("plane_margin", "plane_agree_px"):
+            if not getattr(self.selection, name) >= 0:
+                raise ProjregError(f"refine selection.{name} must be >= 0, got {getattr(self.selection, name)}")
+
+
+@dataclass(frozen=True)
+class Quality:
+    """One setting of the quality dial: where the network runs and how the refinement searches.
+
+    ``network_side``: the longer side the network sees at most (the pair is shrunk for it and its flow
+    brought back); ``refine``: the refinement's configuration."""
+
+    name: str
+    network_side: int
+    refine: RefineConfig
+    about: str
+
+
+# ``best``: every start on every view, the network at up to 1024 px (the pipeline as it was before the
+# dial: docs/history). ``default``: the network at 256 px (the refinement closes what the coarser flow
+# leaves), the identity and SIFT starts only where the network's answer leaves the frame unverified, and
+# a stage's candidates on two threads. ``fast``: the network's start on normalised images alone, the pair
+# refined at 256 px with the pixel parameters halved, no detail level, periodicity test, albedo or bridge.
+BEST = RefineConfig()
+DEFAULT = BEST.with_sections(search={"escalate_below": 0.9, "workers": 2, "sift_side": 256})
+FAST = RefineConfig(
+    images=ImagesConfig(max_side=256, plain=False, albedo=False),
+    fit=FitConfig(ransac_px=1.0, refit_px=0.5, fit_points=3072),
+    surface=SurfaceConfig(robust_px=0.5, free_px=8.0, detail=False),
+    search=SearchConfig(identity=False, sift=False),
+    selection=SelectionConfig(ncc_sigma=3.5),
+    confidence=ConfidenceConfig(periodic=False, bridge=False),
+)
+QUALITIES = {
+    q.name: q
+    for q in (
+        Quality("fast", 256, FAST, "the network at 256 px, one start on one view, refined at 256 px"),
+        Quality("default", 256, DEFAULT, "the network at 256 px, more starts only where the evidence asks"),
+        Quality("best", 1024, BEST, "the network at up to 1024 px, every start on every view"),
+    )
+}
+
+
+def quality(name: str) -> Quality:
+    """The quality setting called ``name``.
+
+    Raises:
+        ProjregError: naming ``--quality`` when there is no such setting.
+    """
+    if name not in QUALITIES:
+        raise ProjregError(f"--quality {name!r}: expected one of {', '.join(QUALITIES)}")
+    return QUALITIES[name]

@@ -12,21 +12,6 @@ from ..geometry.images import weighted_ncc
 from ..geometry.warp import warp_back
 
 
-def plane_agrees(plane: np.ndarray, flow: np.ndarray, textured: np.ndarray, px: float) -> bool:
-    """Whether a homography's flow stays within ``px`` of the refined ``flow`` it was simplified from on 90 %
-    of the ``textured`` pixels: only then is it the same explanation of the images with less noise. Where
-    the residual moved the answer farther (a low-contrast pair whose residual wandered, a bent surface),
-    a close score says only that the images cannot tell the two apart.
-
-    Example:
-        >>> f = np.zeros((4, 4, 2), np.float32)
-        >>> plane_agrees(f, f + 1.0, np.ones((4, 4), bool), 2.0), plane_agrees(f, f + 3.0, np.ones((4, 4), bool), 2.0)
-        (True, False)
-    """
-    gap = np.linalg.norm(plane - flow, axis=-1)[textured]
-    return bool(gap.size) and float(np.percentile(gap, 90)) <= px
-
-
 def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, bound: float) -> np.ndarray:
     """``flow`` where ``support`` is true; elsewhere moved at most ``bound`` px away from ``prior``.
 
@@ -36,9 +21,9 @@ def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, boun
         [[3.0, 4.0], [1.0, 0.0]]
     """
     d = flow - prior  # [H, W, 2]
-    n = np.linalg.norm(d, axis=-1, keepdims=True)
-    scale = np.where(support[..., None], 1.0, np.minimum(1.0, bound / np.maximum(n, 1e-6)))
-    return (prior + d * scale).astype(np.float32)
+    n = np.hypot(d[..., 0], d[..., 1])  # [H, W]
+    scale = np.where(support, 1.0, np.minimum(1.0, bound / np.maximum(n, 1e-6))).astype(np.float32)
+    return (prior + d * scale[..., None]).astype(np.float32)
 
 
 def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.ndarray) -> str:

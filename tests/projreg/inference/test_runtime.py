@@ -9,9 +9,9 @@ from typer.testing import CliRunner
 from projreg import ProjregError
 from projreg.cli import app
 from projreg.evaluation.methods import ModelRun, model_methods
-from projreg.inference.runtime import FAST_MAX_SIDE, TorchNetwork, flows_resized, parse_device, parse_precision
+from projreg.inference.runtime import TorchNetwork, flows_resized, parse_device, parse_precision
 from projreg.model.checkpoint import load_model
-from projreg.refine.config import FAST_REFINE
+from projreg.refine.config import QUALITIES
 from projreg.refine.refiner import GeometricRefiner
 from projreg.training.validate import predict_flow
 from projsynth.dataset.shards import ShardReader
@@ -93,12 +93,13 @@ def test_predict_folder_mode_in_batches_writes_what_one_by_one_writes(tiny_ckpt,
 def test_the_fast_path_is_the_small_network_then_one_refinement_candidate(tiny_ckpt, pairs):
     img0, img1 = pairs[2]
     big0, big1 = (cv2.resize(i, (384, 256), interpolation=cv2.INTER_LINEAR) for i in (img0, img1))
-    (method,) = model_methods(tiny_ckpt, "tiny", ModelRun(device=CPU, fast=True))
+    (method,) = model_methods(tiny_ckpt, "tiny", ModelRun(device=CPU, quality="fast"))
     assert method.name == "tiny-fast"
     pred = method.predict(big0, big1)
     net = TorchNetwork(load_model(tiny_ckpt, CPU), CPU)
-    flow = flows_resized(net, [(big0, big1)], FAST_MAX_SIDE)[0]  # the network at 170 x 256
-    expected, info = GeometricRefiner(FAST_REFINE).predict_info(big0, big1, flow)
+    fast = QUALITIES["fast"]
+    flow = flows_resized(net, [(big0, big1)], fast.network_side)[0]  # the network at 170 x 256
+    expected, info = GeometricRefiner(fast.refine).predict_info(big0, big1, flow)
     np.testing.assert_allclose(pred.flow, expected.flow, atol=1e-4)
     refined = {key for key in info.scores if not key.endswith("-homography")}
     assert refined <= {"network/normalised", "identity/normalised"} and len(refined) == 1

@@ -5,6 +5,7 @@ import numpy as np
 
 from projreg.prediction import CONFIDENT
 from projreg.refine.confidence import neighbourhood, pixel_confidence
+from projreg.refine.config import ConfidenceConfig
 
 
 def _bands(gap: int, h: int = 64, w: int = 400, band: int = 60) -> np.ndarray:
@@ -19,7 +20,7 @@ def _confidence(texture, fail=None, radius=10.0):
     """Every check passed (ncc 1, residual 0, spread 0) except on the bool mask ``fail`` (ncc 0)."""
     ncc = np.ones_like(texture) if fail is None else np.where(fail, 0.0, 1.0).astype(np.float32)
     zero = np.zeros_like(texture)
-    return pixel_confidence(texture, ncc, zero, zero, radius)
+    return pixel_confidence(texture, ncc, zero, zero, radius, ConfidenceConfig())
 
 
 def test_a_flat_gap_between_verified_texture_is_claimed_by_the_coarse_neighbourhood():

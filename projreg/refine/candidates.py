@@ -1,0 +1,194 @@
+"""The refinement's starts and candidates: :class:`Start` (a hypothesis: a homography and the flow it came
+from), :class:`Candidate` (a refined flow, or a homography alone), and the two stages that make them:
+:func:`propose` and :func:`refine_start`.
+
+Convention: flows float32 ``(H, W, 2)``, forward, projected -> captured, pixels; homographies 3 x 3,
+projected -> captured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..geometry.frames import shrink
+from ..geometry.homography import SiftHomography, area_ratio, fit_affine, fit_homography, homography_flow
+from ..geometry.images import to_gray
+from ..geometry.splines import fit_bspline, fit_detail
+from ..geometry.warp import compose
+from .context import PairContext, flow_distance
+from .evidence import bound_outside
+
+
+@dataclass(frozen=True)
+class Start:
+    """A hypothesis the refinement starts from: ``name`` ("network", "identity", "sift", "grown"), its
+    homography ``H`` (None: none fitted, nothing is refined from it) and ``prior``, the flow the answer
+    stays near where there is no support (the network's flow, zero for the identity)."""
+
+    name: str
+    H: np.ndarray | None
+    prior: np.ndarray
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A flow that competes in the selection: refined from start ``hypothesis`` on view ``images``
+    ("normalised", "plain", "albedo"), or, ``plane`` True, the homography alone (refitted from that
+    candidate, or SIFT's with ``images`` "homography")."""
+
+    hypothesis: str
+    images: str
+    flow: np.ndarray
+    plane: bool = False
+
+    @property
+    def refitted(self) -> bool:
+        """A refitted plane: its refined candidate simplified, not another explanation of the images."""
+        return self.plane and self.images != "homography"
+
+    @property
+    def label(self) -> str:
+        """The images in reports: ``images``, with ``-homography`` for a refitted plane."""
+        return f"{self.images}-homography" if self.refitted else self.images
+
+    @property
+    def key(self) -> str:
+        """``HYPOTHESIS/LABEL``: the candidate's name in :attr:`RefineInfo.scores` and the memo."""
+        return f"{self.hypothesis}/{self.label}"
+
+
+@dataclass(frozen=True)
+class RefineInfo:
+    """What :meth:`~projreg.refine.refiner.GeometricRefiner.predict_info` chose: ``hypothesis``
+    ("network", "identity", "sift", "grown", "none" for a textureless pair or "skipped"), ``images``
+    (:attr:`Candidate.label`: "normalised", "plain", "albedo", "homography" for a homography unrefined, or
+    one of the first three with "-homography" for a refitted plane alone), the selection score
+    of every candidate tried (keyed :attr:`Candidate.key`, texture-weighted mean local NCC in [-1, 1]),
+    the per-pixel ``confidence`` (float32 ``(H, W)`` in [0, 1]), ``evidence`` (the textured share of the
+    frame) and ``stages``: the stages run, in order ("network", "more starts", "grown", "bridge")."""
+
+    hypothesis: str
+    images: str
+    scores: dict[str, float]
+    confidence: np.ndarray
+    evidence: float
+    stages: tuple[str, ...] = ()
+
+
+def network_start(ctx: PairContext, flow: np.ndarray) -> tuple[Start, bool]:
+    """The network's start and whether its homography is well conditioned enough to answer with.
+
+    The network's flow is fitted everywhere (it carries the network's hypothesis into flat regions;
+    the refits keep to the textured pixels). A homography too bent to trust as an answer (strong lens
+    distortion) still starts a refinement; an affine fit stands in when no homography is found."""
+    fit, (h, w) = ctx.config.fit, ctx.shape
+    found = fit_homography(flow, ctx.step, fit.ransac_px, None, math.inf, fit.min_hull)
+    usable = found is not None and area_ratio(found[0], h, w) <= fit.max_area_ratio
+    found = found or fit_affine(flow, ctx.step, fit.ransac_px, fit.min_hull)
+    return Start("network", None if found is None else found[0], flow), usable
+
+
+def identity_start(ctx: PairContext) -> Start:
+    return Start("identity", np.eye(3), np.zeros((*ctx.shape, 2), np.float32))
+
+
+def sift_start(ctx: PairContext, sift: SiftHomography, projected: np.ndarray, captured: np.ndarray) -> Start | None:
+    """SIFT + RANSAC's homography of the pair as a start, when it finds a proper, well conditioned one.
+
+    SIFT runs on the pair shrunk to ``search.sift_side`` (the start only has to fall in the right basin:
+    the refinement measures the rest) and its homography is brought back to the pair's pixels."""
+    side = ctx.config.search.sift_side
+    gray0, gray1 = shrink(to_gray(projected), side), shrink(to_gray(captured), side)
+    H, status, _ = sift(gray0, gray1)
+    if status != "ok":
+        return None
+    (h, w), (hs, ws) = ctx.shape, gray0.shape
+    S = np.array([[ws / w, 0, 0.5 * ws / w - 0.5], [0, hs / h, 0.5 * hs / h - 0.5], [0, 0, 1]])  # full -> small
+    H = np.linalg.inv(S) @ H @ S
+    fit = ctx.config.fit
+    flow = homography_flow(H, *ctx.shape)
+    found = fit_homography(flow, ctx.step, fit.ransac_px, None, fit.max_area_ratio, fit.min_hull)
+    return None if found is None else Start("sift", found[0], flow)
+
+
+def grown_start(ctx: PairContext, flow: np.ndarray, claimed: np.ndarray) -> Start | None:
+    """The homography of ``flow`` on its ``claimed`` pixels as one more start, when that claim covers at
+    least ``registered_above`` and less than ``grow_below`` of the frame and the homography fits.
+
+    A candidate often verifies one part of the frame and misses the rest (its residual converged where
+    its start was close); on a smooth surface the verified part's plane is a better start for the rest,
+    and refined and checked like every other, it wins only where it explains the images better."""
+    cfg = ctx.config
+    share = float(claimed.mean())
+    if not cfg.confidence.registered_above <= share < cfg.search.grow_below:
+        return None
+    fit = cfg.fit
+    found = fit_homography(flow, ctx.step, fit.ransac_px, claimed, fit.max_area_ratio, fit.min_hull)
+    return None if found is None else Start("grown", found[0], homography_flow(found[0], *ctx.shape))
+
+
+def refine_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: str) -> list[Candidate]:
+    """The refinement of one start on one view, and the homography alone when it stands for it.
+
+    The DIS residual is measured on the captured image warped back by the start's homography; the
+    homography is refitted once (textured pixels, well conditioned) to model + residual and the residual
+    measured again; the surface model (:func:`surface`) of that residual, composed on the refitted
+    homography, is the candidate. The refitted homography alone competes too (``plane``) where it stays
+    within ``plane_agree_px`` of the candidate on ``plane_agree_share`` of the textured pixels: on a
+    planar scene the residual adds only DIS's noise."""
+    cfg, (h, w) = ctx.config, ctx.shape
+    base = homography_flow(start.H, h, w)
+    full = compose(base, ctx.residual(dis, view, base))
+    fit = cfg.fit
+    found = fit_homography(full, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
+    if found is not None:
+        base = homography_flow(found[0], h, w)
+    flow = surface(ctx, view, base, ctx.residual(dis, view, base), start.prior)
+    out = [Candidate(start.name, view, flow)]
+    if found is not None:
+        plane = bound_outside(base, start.prior, ctx.support, cfg.surface.free_px)
+        if plane_agrees(ctx, plane, flow):
+            out.append(Candidate(start.name, view, plane, plane=True))
+    return out
+
+
+def surface(ctx: PairContext, view: str, base: np.ndarray, residual: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """``base`` composed with the coarse spline of ``residual`` (and the cross-validated fine level where
+    it wins, :func:`~projreg.geometry.splines.fit_detail`), held within ``free_px`` of ``prior`` outside
+    the support."""
+    sf, weight = ctx.config.surface, ctx.weight(view)
+    smooth = fit_bspline(residual, weight, sf.grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations)
+    if sf.detail:
+        detail, _ = fit_detail(
+            residual - smooth,
+            weight,
+            sf.detail_grid,
+            sf.detail_bends,
+            ctx.step,
+            sf.robust_px,
+            block=sf.detail_block,
+            gain=sf.detail_gain,
+            ridge=sf.ridge,
+            iterations=sf.iterations,
+            fade=sf.detail_fade,
+        )
+        smooth = smooth + detail
+    return bound_outside(compose(base, smooth), prior, ctx.support, sf.free_px)
+
+
+def plane_agrees(ctx: PairContext, plane: np.ndarray, flow: np.ndarray) -> bool:
+    """Whether a homography's flow stays within ``plane_agree_px`` of the refined ``flow`` it was
+    simplified from on ``plane_agree_share`` of the textured pixels: only then is it the same
+    explanation of the images with less noise."""
+    sel = ctx.config.selection
+    gap = flow_distance(plane, flow)[ctx.textured]
+    return bool(gap.size) and float(np.percentile(gap, 100 * sel.plane_agree_share)) <= sel.plane_agree_px
+
+
+def sift_plane(start: Start) -> Candidate:
+    """SIFT's homography as it is, which no residual refines."""
+    return Candidate(start.name, "homography", start.prior, plane=True)

@@ -1,0 +1,169 @@
+"""What the refinement knows about one pair, built once: its views, its texture evidence and support, and
+the cache of every candidate's check maps (:class:`PairContext`).
+
+Convention: gray images ``(H, W)`` on the projected grid; flows float32 ``(H, W, 2)``, forward,
+projected -> captured, pixels.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..geometry.homography import fit_step
+from ..geometry.images import divide_albedo, near, normalize_contrast, texture_weight, to_gray
+from ..geometry.warp import compose, warp_back
+from .config import RefineConfig
+
+VIEWS = ("normalised", "plain", "albedo")  # the gray images a residual is measured on
+
+
+def flow_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per-pixel distance (px) between two flows, float32 ``(H, W)``."""
+    d = a - b
+    return np.hypot(d[..., 0], d[..., 1])
+
+
+class LocalStats:
+    """Gaussian-window mean and variance of a reference image, computed once, so that the local NCC of
+    each image compared with it (:meth:`ncc`) blurs three maps instead of five."""
+
+    def __init__(self, image: np.ndarray, sigma: float) -> None:
+        self.sigma = sigma
+        self.image = image.astype(np.float32)
+        self.mean = self._blur(self.image)
+        self.var = self._blur(self.image * self.image) - self.mean * self.mean
+
+    def _blur(self, img: np.ndarray) -> np.ndarray:
+        return cv2.GaussianBlur(img, (0, 0), self.sigma)
+
+    def ncc(self, other: np.ndarray) -> np.ndarray:
+        """:func:`~projreg.geometry.images.local_ncc` of the reference and ``other`` (aligned with it)."""
+        b = other.astype(np.float32)
+        mb = self._blur(b)
+        cov = self._blur(self.image * b) - self.mean * mb
+        var = np.maximum(self.var * (self._blur(b * b) - mb * mb), 1e-2)
+        return cov / np.sqrt(var)
+
+
+@dataclass
+class PairContext:
+    """One pair as every stage reads it (:meth:`build`).
+
+    ``plain``/``normalised``: the gray images ``(projected, captured)`` without and with local contrast
+    normalisation; ``evidence``: the projected image's texture weight in [0, 1] (absolute floor);
+    ``share``: its textured share of the frame; ``textured``/``support``: bool maps of the textured
+    pixels and of those near enough to texture to be measured; ``step``: the fits' grid step;
+    ``weights``: each view's texture weight for the surface fit; ``memo``: each candidate's check maps,
+    by key (scored once, read again by the confidence).
+    """
+
+    config: RefineConfig
+    plain: tuple[np.ndarray, np.ndarray]
+    normalised: tuple[np.ndarray, np.ndarray]
+    evidence: np.ndarray
+    share: float
+    textured: np.ndarray
+    support: np.ndarray
+    step: int
+    weights: dict[str, np.ndarray] = field(default_factory=dict)
+    memo: dict[str, np.ndarray] = field(default_factory=dict)
+    _reference: LocalStats | None = None
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @classmethod
+    def build(cls, projected: np.ndarray, captured: np.ndarray, config: RefineConfig) -> PairContext:
+        """The context of a pair of uint8 RGB ``(H, W, 3)`` images."""
+        im = config.images
+        plain = (to_gray(projected), to_gray(captured))
+        normalised = (normalize_contrast(plain[0], im.contrast_sigma), normalize_contrast(plain[1], im.contrast_sigma))
+        evidence = texture_weight(plain[0], im.texture_floor, im.texture_sigma)
+        textured = evidence >= im.textured_at
+        h, w = plain[0].shape
+        return cls(
+            config,
+            plain,
+            normalised,
+            evidence,
+            float(textured.mean()),
+            textured,
+            near(textured, config.surface.support_margin * max(h, w)),
+            fit_step(h, w, config.fit.fit_points),
+        )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.plain[0].shape
+
+    def views(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The views residuals are measured on, in the order candidates are tried: normalised, then plain
+        and albedo when configured (albedo reads the plain images and divides the reflectance out)."""
+        im = self.config.images
+        out = {"normalised": self.normalised}
+        if im.plain:
+            out["plain"] = self.plain
+        if im.albedo:
+            out["albedo"] = self.plain
+        return out
+
+    def weight(self, view: str) -> np.ndarray:
+        """The surface fit's texture weight on ``view``: relative on the normalised images, with the
+        absolute floor on the others."""
+        if view not in self.weights:
+            floor = 0.0 if view == "normalised" else self.config.images.texture_floor
+            gray = self.normalised[0] if view == "normalised" else self.plain[0]
+            self.weights[view] = texture_weight(gray, floor, self.config.images.texture_sigma)
+        return self.weights[view]
+
+    def residual(self, dis: cv2.DISOpticalFlow, view: str, base: np.ndarray) -> np.ndarray:
+        """DIS flow from the projected image to the captured one warped back by ``base``, on ``view``;
+        on the albedo view the warped image is divided by the wall's reflectance first and both are
+        normalised."""
+        gray0, gray1 = self.views()[view] if view != "albedo" else self.plain
+        warped = warp_back(gray1, base)
+        if view != "albedo":
+            return dis.calc(gray0, warped, None)
+        sigma = self.config.images.contrast_sigma
+        return dis.calc(self.normalised[0], normalize_contrast(self._divide_albedo(warped), sigma), None)
+
+    def seen(self, flow: np.ndarray) -> np.ndarray:
+        """The captured image warped back by ``flow`` as the selection and the checks compare it with the
+        normalised projected image: normalised, the wall's reflectance divided out first with ``albedo``."""
+        im = self.config.images
+        if not im.albedo:
+            return warp_back(self.normalised[1], flow)
+        return normalize_contrast(self._divide_albedo(warp_back(self.plain[1], flow)), im.contrast_sigma)
+
+    def _divide_albedo(self, warped: np.ndarray) -> np.ndarray:
+        return divide_albedo(self.plain[0], warped, self.config.images.albedo_window)
+
+    def ncc(self, key: str, flow: np.ndarray) -> np.ndarray:
+        """Local NCC map ``(H, W)`` between the normalised projected image and what :meth:`seen` shows of
+        ``flow``, kept under ``key``."""
+        memo_key = f"ncc:{key}"
+        if memo_key not in self.memo:
+            with self._lock:
+                if self._reference is None:
+                    self._reference = LocalStats(self.normalised[0], self.config.selection.ncc_sigma)
+            self.memo[memo_key] = self._reference.ncc(self.seen(flow))
+        return self.memo[memo_key]
+
+    def score(self, key: str, flow: np.ndarray) -> float:
+        """The selection score: the texture-weighted mean of :meth:`ncc`, in [-1, 1]."""
+        values, weight = self.ncc(key, flow), self.evidence
+        return float((values * weight).sum() / max(float(weight.sum()), 1e-6))
+
+    def round_trip(self, dis: cv2.DISOpticalFlow, key: str, flow: np.ndarray) -> np.ndarray:
+        """Forward-backward residual (px, ``(H, W)``) between the projected image and the captured one
+        warped back by ``flow``: what DIS still finds to move either way round; ~0 where the flow holds."""
+        memo_key = f"residual:{key}"
+        if memo_key not in self.memo:
+            gray0, warped = self.normalised[0], self.seen(flow)
+            fwd = dis.calc(gray0, warped, None)
+            bwd = dis.calc(warped, gray0, None)
+            zero = np.zeros_like(fwd)
+            self.memo[memo_key] = np.maximum(flow_distance(fwd, zero), flow_distance(compose(bwd, fwd), zero))
+        return self.memo[memo_key]

@@ -1,0 +1,36 @@
+"""Image operations of the refinement: contrast normalisation and the wall's reflectance divided out."""
+
+import cv2
+import numpy as np
+
+from projreg.geometry.images import divide_albedo, normalize_contrast
+from projsynth.content.procedural import render_procedural
+
+
+def test_contrast_normalisation_removes_local_gain_and_offset():
+    rng = np.random.default_rng(6)
+    gray = cv2.GaussianBlur(rng.integers(0, 256, (80, 100), dtype=np.uint8), (0, 0), 2.0)
+    dim = (0.4 * gray + 90).astype(np.uint8)  # a washed-out copy: contrast 0.4, brighter
+    a, b = normalize_contrast(gray, 16.0), normalize_contrast(dim, 16.0)
+    inner = (slice(20, -20), slice(20, -20))  # away from the border's reflected window
+    assert np.abs(a[inner].astype(int) - b[inner].astype(int)).mean() < 3.0
+    assert np.abs(a[inner].astype(int) - 128).mean() > 15  # and the texture is still there
+    np.testing.assert_array_equal(normalize_contrast(np.full((30, 40), 77, np.uint8), 16.0), 128)
+    assert normalize_contrast(gray, 0) is gray  # 0: off
+
+
+def test_divide_albedo_removes_a_wide_reflectance_pattern_and_keeps_a_misalignment():
+    rgb = render_procedural("natural", "urban", (96, 128), np.random.default_rng(4))
+    gray0 = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    x = np.arange(128, dtype=np.float32)[None, :]
+    wall = np.where(np.sin(2 * np.pi * x / 48) > 0, 0.9, 0.35).astype(np.float32) * np.ones((96, 1), np.float32)
+    inner = (slice(16, -16), slice(16, -16))
+
+    def ncc(image):
+        return np.corrcoef(image[inner].ravel(), gray0[inner].ravel())[0, 1]
+
+    striped, shifted = gray0 * wall, np.roll(gray0, 3, axis=1) * wall
+    assert ncc(striped) < 0.7 and ncc(divide_albedo(gray0, striped, 31)) > 0.95  # the stripes are gone
+    assert ncc(divide_albedo(gray0, shifted, 31)) < 0.5  # a 3 px shift is not explained away as reflectance
+    moved = np.roll(gray0, 3, axis=1)  # on a plain wall the division leaves a misalignment as it was
+    assert abs(ncc(divide_albedo(gray0, moved, 31)) - ncc(moved)) < 0.02

@@ -1,0 +1,49 @@
+"""The refinement's configuration: sections with one meaning per field, checked, and the quality dial."""
+
+import pytest
+
+from projreg import ProjregError
+from projreg.refine.config import BEST, DEFAULT, FAST, QUALITIES, RefineConfig, quality
+
+
+@pytest.mark.parametrize(
+    ("sections", "message"),
+    [
+        ({"surface": {"grid": (3, 8)}}, "grids"),
+        ({"surface": {"robust_px": 0}}, "surface.robust_px"),
+        ({"images": {"contrast_sigma": 0}}, "images.contrast_sigma"),
+        ({"images": {"albedo_window": 4}}, "albedo_window"),
+        ({"images": {"max_side": 16}}, "images.max_side must be >= 32"),
+        ({"search": {"grow_below": 1.5}}, "search.grow_below"),
+        ({"search": {"escalate_below": -0.1}}, "search.escalate_below"),
+        ({"search": {"workers": 0}}, "search.workers"),
+        ({"selection": {"plane_margin": -0.1}}, "selection.plane_margin"),
+        ({"selection": {"plane_agree_px": -1.0}}, "selection.plane_agree_px"),
+        ({"confidence": {"radius": 0}}, "confidence.radius"),
+    ],
+)
+def test_a_bad_value_is_refused_naming_its_section_and_field(sections, message):
+    with pytest.raises(ProjregError, match=message):
+        RefineConfig().with_sections(**sections)
+
+
+def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
+    assert list(QUALITIES) == ["fast", "default", "best"]
+    assert (QUALITIES["fast"].refine, QUALITIES["default"].refine, QUALITIES["best"].refine) == (FAST, DEFAULT, BEST)
+    assert BEST == RefineConfig()  # the field defaults are the full search
+    sides = [q.network_side for q in QUALITIES.values()]
+    assert sides == sorted(sides)
+    assert FAST.images.max_side is not None and DEFAULT.images.max_side is None  # only fast shrinks the pair
+    assert (
+        not FAST.search.identity
+        and not FAST.search.sift
+        and DEFAULT.search.escalate_below < 1 <= BEST.search.escalate_below
+    )
+    with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, default, best"):
+        quality("quick")
+
+
+def test_with_sections_replaces_only_the_named_fields():
+    cfg = BEST.with_sections(search={"sift": False}, surface={"detail": False})
+    assert not cfg.search.sift and cfg.search.identity and not cfg.surface.detail
+    assert cfg.surface.grid == BEST.surface.grid and cfg.images == BEST.images
