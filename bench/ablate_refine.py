@@ -2,9 +2,9 @@
 
     python bench/ablate_refine.py --data DIR [--model CKPT] [--every 4 | --limit N] [--side 256]
 
-For every evaluated sample the network runs once (at ``--side``, the default quality's); each row is
+For every evaluated sample the network runs once (at ``--side``); each row is
 then the refinement with one setting of :class:`projreg.refine.config.RefineConfig` changed from the
-``best`` quality's (every start on every view), scored with the pooled EPE of ``projreg.evaluation.metrics``
+``accurate`` quality's (every start on every view), scored with the pooled EPE of ``projreg.evaluation.metrics``
 (overall and the three magnitude buckets), the EPE on claimed pixels, the claimed share and the median
 ms per pair of the refinement, beside the network alone and SIFT + RANSAC.
 """
@@ -23,22 +23,22 @@ from projreg.evaluation.baselines import make_baseline
 from projreg.evaluation.metrics import EPEAccumulator, sample_indices
 from projreg.inference.runtime import TorchNetwork, flows_resized
 from projreg.model.checkpoint import load_model, resolve_checkpoint
-from projreg.refine.config import BEST, DEFAULT, FAST
+from projreg.refine.config import ACCURATE, BALANCED, FAST
 from projreg.refine.refiner import GeometricRefiner
 from projsynth.dataset.shards import ShardReader
 
-ONE = {"workers": 1}  # timed on one thread, so that the rows compare work, not scheduling
+BASE = ACCURATE.with_sections(search={"workers": 1})  # timed on one thread: the rows compare work
 ROWS = {
-    "best (every start, every view)": BEST,
-    "- SIFT start": BEST.with_sections(search={"sift": False}),
-    "- identity start": BEST.with_sections(search={"identity": False}),
-    "- plain view": BEST.with_sections(images={"plain": False}),
-    "- albedo view": BEST.with_sections(images={"albedo": False}),
-    "- detail level": BEST.with_sections(surface={"detail": False}),
-    "- growth": BEST.with_sections(search={"grow": False}),
-    "- bridge": BEST.with_sections(confidence={"bridge": False}),
-    "default (second stage on evidence)": DEFAULT.with_sections(search=ONE),
-    "fast": FAST,
+    "accurate (every start, every view)": BASE,
+    "- SIFT start": BASE.with_sections(search={"sift": False}),
+    "- identity start": BASE.with_sections(search={"identity": False}),
+    "- plain view": BASE.with_sections(images={"plain": False}),
+    "- albedo view": BASE.with_sections(images={"albedo": False}),
+    "- detail level": BASE.with_sections(surface={"detail": False}),
+    "- growth": BASE.with_sections(search={"grow": False}),
+    "- bridge": BASE.with_sections(confidence={"bridge": False}),
+    "balanced (second stage on evidence)": BALANCED.with_sections(search={"workers": 1}),
+    "fast": FAST.with_sections(search={"workers": 1}),
 }
 
 

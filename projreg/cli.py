@@ -15,6 +15,7 @@ from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fa
 from projsynth.utils.cores import available_cores
 
 from . import ProjregError
+from .refine.config import DEFAULT_QUALITY
 
 app = typer.Typer(**PLAIN_HELP, help="Train, benchmark and apply the SSJM projector-camera registration network.")
 
@@ -266,14 +267,14 @@ DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
 PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
 BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
 QUALITY_HELP = (
-    "fast, default or best: where the network runs and how far the refinement searches (docs/model.md, 'Quality')."
+    "fast, balanced or accurate: where the network runs and how far the refinement searches (docs/model.md)."
 )
 FAST_HELP = "The same as --quality fast."
 
 
 def _quality(quality: str, fast: bool) -> str:
     """``--quality``, with ``--fast`` as its alias for ``fast``."""
-    if fast and quality not in ("default", "fast"):
+    if fast and quality not in (DEFAULT_QUALITY, "fast"):
         raise ProjregError(f"--fast is --quality fast; drop one of --fast and --quality {quality}")
     return "fast" if fast else quality
 
@@ -325,7 +326,7 @@ def bench(
     batch_size: Annotated[
         int, typer.Option(help="Samples per network call (pairs of one size are batched).", metavar="N")
     ] = 1,
-    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|default|best")] = "default",
+    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|balanced|accurate")] = DEFAULT_QUALITY,
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
@@ -436,7 +437,7 @@ def predict(
     batch_size: Annotated[
         int, typer.Option(help="Pairs per network call in folder mode (pairs of one size are batched).", metavar="N")
     ] = 1,
-    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|default|best")] = "default",
+    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|balanced|accurate")] = DEFAULT_QUALITY,
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     quiet: Quiet = False,
 ) -> None:

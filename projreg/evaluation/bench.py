@@ -50,6 +50,7 @@ from ..geometry.frames import register_any_size, resize_to
 from ..inference.track import JitterAccumulator
 from ..model.checkpoint import reference_checkpoint
 from ..prediction import Prediction, as_prediction
+from ..refine.config import DEFAULT_QUALITY
 from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_row
 from .methods import DEFAULT_BASELINES, REFINE_MODES, Method, ModelRun, resolve_methods
 from .metrics import KEYS, EPEAccumulator, sample_indices
@@ -129,7 +130,7 @@ def run_bench(
     device: torch.device | str | None = None,
     precision: str = "fp32",
     backend: str = "torch",
-    quality: str = "default",
+    quality: str = DEFAULT_QUALITY,
     compensation: bool = False,
     photometric: bool = False,
     sheet: list[np.ndarray] | None = None,

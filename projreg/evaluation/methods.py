@@ -15,7 +15,7 @@ from ..inference.runtime import flows_resized, open_network
 from ..inference.track import FlowTracker, Tracker
 from ..model.checkpoint import reference_checkpoint, resolve_checkpoint
 from ..prediction import Prediction
-from ..refine.config import quality
+from ..refine.config import DEFAULT_QUALITY, quality
 from ..refine.refiner import GeometricRefiner
 from .baselines import make_baseline
 
@@ -55,7 +55,7 @@ class ModelRun:
     ``name-raw``. ``device``, ``precision`` and ``backend`` say where and how the network runs
     (:func:`projreg.inference.runtime.open_network`; ``backend="onnxruntime"`` takes a ``.onnx`` file); ``quality``
     names the setting of :data:`projreg.refine.config.QUALITIES` (the network's side and the refinement;
-    names end in ``-fast`` or ``-best`` for those two). ``track``: also the refined method tracking
+    names end in ``-fast`` or ``-balanced`` for those two). ``track``: also the refined method tracking
     (:class:`~projreg.inference.track.Tracker`),
     named ``name+track``; ``batch_size`` > 1: the methods get a ``prefetch`` (:class:`BatchedFlows`)
     shared between them.
@@ -65,7 +65,7 @@ class ModelRun:
     device: torch.device | str | None = None
     precision: str = "fp32"
     backend: str = "torch"
-    quality: str = "default"
+    quality: str = DEFAULT_QUALITY
     track: bool = False
     batch_size: int = 1
 
@@ -79,7 +79,7 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
     if track and refine == "off":
         raise ProjregError("--track follows each frame with the refinement; use --refine on or both")
     net = open_network(path, backend=run.backend, device=run.device, precision=run.precision)
-    name = (name or Path(path).stem) + ("" if setting.name == "default" else f"-{setting.name}")
+    name = (name or Path(path).stem) + ("" if setting.name == DEFAULT_QUALITY else f"-{setting.name}")
     refiner = GeometricRefiner(setting.refine)
     max_side = setting.network_side
     batched = BatchedFlows(net, max_side, batch_size) if batch_size > 1 else None

@@ -35,6 +35,7 @@ from .. import ProjregError
 from ..geometry.frames import register_any_size, resize_to
 from ..model.checkpoint import resolve_checkpoint
 from ..prediction import CONFIDENT, Prediction
+from ..refine.config import DEFAULT_QUALITY
 from ..refine.config import quality as resolve_quality
 from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
@@ -137,7 +138,7 @@ def predict(
     precision: str = "fp32",
     backend: str = "torch",
     batch_size: int = 1,
-    quality: str = "default",
+    quality: str = DEFAULT_QUALITY,
     progress: Callable[[int, int], None] | None = None,
     max_flow: float | None = None,
     track: bool = False,
@@ -157,8 +158,8 @@ def predict(
         device, precision, backend: where and how the network runs (:func:`projreg.inference.runtime.open_network`);
             device None: CUDA when available, else the CPU.
         batch_size: pairs per network call (folder mode; pairs of one size are batched).
-        quality: ``fast``, ``default`` or ``best`` (:data:`projreg.refine.config.QUALITIES`): the network's
-            side and how the refinement searches.
+        quality: ``fast``, ``balanced`` or ``accurate`` (the default; :data:`projreg.refine.config.QUALITIES`):
+            the network's side and how the refinement searches.
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flow.pictures.flow_picture``, with its legend).

@@ -1,6 +1,6 @@
 """The geometric refinement's settings: :class:`RefineConfig`, in sections (images, fit, surface,
-search, selection, confidence), and the three qualities of :data:`QUALITIES` (``fast``, ``default``,
-``best``) that ``predict --quality`` and ``bench --quality`` name.
+search, selection, confidence), and the three qualities of :data:`QUALITIES` (``fast``, ``balanced``,
+``accurate``, the default) that ``predict --quality`` and ``bench --quality`` name.
 
 Every number the refinement uses is a field here, with one meaning each; a stage that can be left out
 has an on/off flag (no special values). docs/model.md explains each stage and the qualities' figures
@@ -73,7 +73,7 @@ class SearchConfig:
     # pixels (1.0: always, every start and view in one stage)
     grow: bool = True  # a partial answer's verified plane starts one more hypothesis
     grow_below: float = 0.8  # ... when the answer claims less than this share of the frame
-    workers: int = 1  # threads refining a stage's candidates side by side (OpenCV and numpy release the GIL)
+    workers: int = 2  # threads refining a stage's candidates side by side (OpenCV and numpy release the GIL)
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,7 @@ class RefineConfig:
 
     def with_sections(self, **sections: dict) -> RefineConfig:
         """This configuration with some fields of its sections replaced, e.g.
-        ``BEST.with_sections(search={"sift": False}, surface={"detail": False})``."""
+        ``ACCURATE.with_sections(search={"sift": False}, surface={"detail": False})``."""
         return replace(self, **{name: replace(getattr(self, name), **fields) for name, fields in sections.items()})
 
     def __post_init__(self) -> None:
@@ -168,13 +168,13 @@ class Quality:
     about: str
 
 
-# ``best``: every start on every view, the network at up to 1024 px (the pipeline as it was before the
-# dial: docs/history). ``default``: the network at 256 px (the refinement closes what the coarser flow
-# leaves), the identity and SIFT starts only where the network's answer leaves the frame unverified, and
-# a stage's candidates on two threads. ``fast``: the network's start on normalised images alone, the pair
-# refined at 256 px with the pixel parameters halved, no detail level, periodicity test, albedo or bridge.
-BEST = RefineConfig()
-DEFAULT = BEST.with_sections(search={"escalate_below": 0.9, "workers": 2, "sift_side": 256})
+# ``accurate`` (the default): every start on every view, the network at up to 1024 px. ``balanced``: the
+# network at 256 px (the refinement closes what the coarser flow leaves), SIFT's start found at 256 px,
+# and the identity and SIFT starts only where the network's answer leaves the texture unverified. ``fast``:
+# the network's start on normalised images alone, the pair refined at 256 px with the pixel parameters
+# halved, no detail level, periodicity test, albedo view or bridge. Their figures: docs/results.md.
+ACCURATE = RefineConfig()
+BALANCED = ACCURATE.with_sections(search={"escalate_below": 0.9, "sift_side": 256})
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),
     fit=FitConfig(ransac_px=1.0, refit_px=0.5, fit_points=3072),
@@ -187,10 +187,11 @@ QUALITIES = {
     q.name: q
     for q in (
         Quality("fast", 256, FAST, "the network at 256 px, one start on one view, refined at 256 px"),
-        Quality("default", 256, DEFAULT, "the network at 256 px, more starts only where the evidence asks"),
-        Quality("best", 1024, BEST, "the network at up to 1024 px, every start on every view"),
+        Quality("balanced", 256, BALANCED, "the network at 256 px, more starts only where the evidence asks"),
+        Quality("accurate", 1024, ACCURATE, "the network at up to 1024 px, every start on every view"),
     )
 }
+DEFAULT_QUALITY = "accurate"
 
 
 def quality(name: str) -> Quality:

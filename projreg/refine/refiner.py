@@ -58,7 +58,7 @@ from .candidates import (
     sift_start,
 )
 from .confidence import gap_confidence, pixel_confidence
-from .config import MIN_SIDE, QUALITIES, RefineConfig
+from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, flow_distance
 from .evidence import repeating, unverified
 
@@ -66,10 +66,10 @@ from .evidence import repeating, unverified
 class GeometricRefiner:
     """Refines network flows (module docstring); one refiner may serve one thread at a time.
 
-    ``config``: the refinement's settings (default: the ``default`` quality's, :data:`QUALITIES`)."""
+    ``config``: the refinement's settings (default: the default quality's, :data:`QUALITIES`)."""
 
     def __init__(self, config: RefineConfig | None = None) -> None:
-        self.config = config or QUALITIES["default"].refine
+        self.config = config or QUALITIES[DEFAULT_QUALITY].refine
         self._local = threading.local()  # each thread's own DIS instance
         self._sift = SiftHomography() if self.config.search.sift else None
         workers = self.config.search.workers

@@ -20,7 +20,7 @@ from projreg.evaluation.report import check_thresholds, parse_threshold
 from projreg.inference.runtime import TorchNetwork, flows_resized
 from projreg.model.checkpoint import load_checkpoint, load_model, reference_checkpoint
 from projreg.model.net import MODEL_CONFIGS
-from projreg.refine.config import QUALITIES
+from projreg.refine.config import DEFAULT_QUALITY, QUALITIES
 from projreg.refine.refiner import GeometricRefiner
 from projsynth.dataset.generate import generate
 from projsynth.dataset.plan import resolve_plan
@@ -106,7 +106,7 @@ def test_predict_uses_the_reference_by_default(gate_data, tmp_path):
     result = CliRunner().invoke(app, [str(a) for a in args] + ["-q"])
     assert result.exit_code == 0, result.stderr
     flow = read_flow_exr(tmp_path / "f.exr")[0]
-    default = QUALITIES["default"]  # the network at its side, then the default refinement
+    default = QUALITIES[DEFAULT_QUALITY]  # the network at its side, then the default refinement
     net = TorchNetwork(load_model(reference_checkpoint(), CPU), CPU)
     raw = flows_resized(net, [(s["projected"], s["captured"])], default.network_side)[0]
     expected = GeometricRefiner(default.refine).refine(s["projected"], s["captured"], raw)[0]

@@ -3,7 +3,7 @@
 import pytest
 
 from projreg import ProjregError
-from projreg.refine.config import BEST, DEFAULT, FAST, QUALITIES, RefineConfig, quality
+from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, RefineConfig, quality
 
 
 @pytest.mark.parametrize(
@@ -28,22 +28,19 @@ def test_a_bad_value_is_refused_naming_its_section_and_field(sections, message):
 
 
 def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
-    assert list(QUALITIES) == ["fast", "default", "best"]
-    assert (QUALITIES["fast"].refine, QUALITIES["default"].refine, QUALITIES["best"].refine) == (FAST, DEFAULT, BEST)
-    assert BEST == RefineConfig()  # the field defaults are the full search
+    assert list(QUALITIES) == ["fast", "balanced", "accurate"] and DEFAULT_QUALITY == "accurate"
+    assert [q.refine for q in QUALITIES.values()] == [FAST, BALANCED, ACCURATE]
+    assert ACCURATE == RefineConfig()  # the field defaults are the full search
     sides = [q.network_side for q in QUALITIES.values()]
     assert sides == sorted(sides)
-    assert FAST.images.max_side is not None and DEFAULT.images.max_side is None  # only fast shrinks the pair
-    assert (
-        not FAST.search.identity
-        and not FAST.search.sift
-        and DEFAULT.search.escalate_below < 1 <= BEST.search.escalate_below
-    )
-    with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, default, best"):
+    assert FAST.images.max_side is not None and BALANCED.images.max_side is None  # only fast shrinks the pair
+    assert not FAST.search.identity and not FAST.search.sift
+    assert BALANCED.search.escalate_below < 1 <= ACCURATE.search.escalate_below
+    with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, balanced, accurate"):
         quality("quick")
 
 
 def test_with_sections_replaces_only_the_named_fields():
-    cfg = BEST.with_sections(search={"sift": False}, surface={"detail": False})
+    cfg = ACCURATE.with_sections(search={"sift": False}, surface={"detail": False})
     assert not cfg.search.sift and cfg.search.identity and not cfg.surface.detail
-    assert cfg.surface.grid == BEST.surface.grid and cfg.images == BEST.images
+    assert cfg.surface.grid == ACCURATE.surface.grid and cfg.images == ACCURATE.images

@@ -13,7 +13,7 @@ from projreg.geometry.homography import area_ratio, fit_homography, homography_f
 from projreg.geometry.images import texture_weight, to_gray
 from projreg.prediction import CONFIDENT
 from projreg.refine.candidates import Candidate, grown_start
-from projreg.refine.config import BEST, DEFAULT, FAST, RefineConfig
+from projreg.refine.config import ACCURATE, BALANCED, FAST, RefineConfig
 from projreg.refine.context import PairContext
 from projreg.refine.evidence import periodicity, repeating
 from projreg.refine.refiner import GeometricRefiner
@@ -21,13 +21,13 @@ from projsynth.content.procedural import render_procedural
 
 from .rendered import bent_pair, coarse, epe, network_like
 
-NO_SIFT = BEST.with_sections(search={"sift": False})
+NO_SIFT = ACCURATE.with_sections(search={"sift": False})
 H_TRUE = np.array([[1.02, 0.03, 4.0], [-0.02, 0.98, -3.0], [1e-4, -5e-5, 1.0]])
 
 
 def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
     rng = np.random.default_rng(3)
-    refiner = GeometricRefiner(BEST)  # every start on every view
+    refiner = GeometricRefiner(ACCURATE)  # every start on every view
     for s in samples:
         start = coarse(s, rng)
         flow, info = refiner.refine(s["projected"], s["captured"], start)
@@ -68,7 +68,7 @@ def test_refine_is_deterministic_whatever_the_workers_and_invariant_to_brightnes
     start = coarse(s, np.random.default_rng(4))
     a, info = GeometricRefiner().predict_info(s["projected"], s["captured"], start)
     b, _ = GeometricRefiner().predict_info(s["projected"], s["captured"], start)
-    one = GeometricRefiner(DEFAULT.with_sections(search={"workers": 1}))
+    one = GeometricRefiner(ACCURATE.with_sections(search={"workers": 1}))
     c, info_one = one.predict_info(s["projected"], s["captured"], start)
     for other in (b, c):  # two threads or one: the same candidates, the same order, the same answer
         np.testing.assert_array_equal(a.flow, other.flow)
@@ -169,7 +169,7 @@ def test_a_pair_reported_not_registered_claims_no_pixel(picture):
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
     kept, _ = GeometricRefiner().predict_info(img0, img1, net)
     assert kept.registered and 0.1 < kept.claimed.mean() < 0.5
-    pred, info = GeometricRefiner(DEFAULT.with_sections(confidence={"registered_above": 0.6})).predict_info(
+    pred, info = GeometricRefiner(ACCURATE.with_sections(confidence={"registered_above": 0.6})).predict_info(
         img0, img1, net
     )
     assert info.evidence > 0.6 and not pred.registered and pred.reason.startswith("no region verified")
@@ -186,7 +186,7 @@ def test_a_short_period_bend_is_followed_by_the_detail_level(picture):
     img0, img1, gt, valid = bent_pair(picture, amp=4.0, period=140.0, seed=3)
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(11))
     errs = {}
-    for name, cfg in (("detail", DEFAULT), ("coarse", DEFAULT.with_sections(surface={"detail": False}))):
+    for name, cfg in (("detail", ACCURATE), ("coarse", ACCURATE.with_sections(surface={"detail": False}))):
         pred = GeometricRefiner(cfg).predict(img0, img1, net)
         errs[name] = np.linalg.norm(pred.flow - gt, axis=-1)[valid].mean()
     assert errs["detail"] < 0.75 * errs["coarse"] and errs["detail"] < 0.45, errs
@@ -211,7 +211,7 @@ def test_a_striped_wall_is_divided_out_of_the_residual_and_the_checks():
     img0, img1, gt, valid = bent_pair(picture, seed=8, wall=wall)
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
     got = {}
-    for name, cfg in (("albedo", DEFAULT), ("off", DEFAULT.with_sections(images={"albedo": False}))):
+    for name, cfg in (("albedo", ACCURATE), ("off", ACCURATE.with_sections(images={"albedo": False}))):
         pred, info = GeometricRefiner(cfg).predict_info(img0, img1, net)
         err, claimed = np.linalg.norm(pred.flow - gt, axis=-1), pred.claimed & valid
         got[name] = (err[valid].mean(), claimed.sum() / valid.sum(), err[claimed].mean(), info.images)
@@ -241,7 +241,7 @@ def test_a_grating_matched_one_period_off_is_not_claimed():
     for test, most in ((True, 0.05), (False, None)):
         # without the test, and without the growth (whose rivals one period apart refuse part of it too)
         search = {"identity": False, "sift": False, "grow": test}
-        cfg = DEFAULT.with_sections(confidence={"periodic": test}, search=search)
+        cfg = ACCURATE.with_sections(confidence={"periodic": test}, search=search)
         pred = GeometricRefiner(cfg).predict(projected, captured, wrong)
         err = np.linalg.norm(pred.flow - shift, axis=-1)
         if most is None:  # without the test the wrong period is claimed: the test is what refuses it
@@ -264,7 +264,7 @@ def test_a_coarse_tiled_motif_matched_one_period_off_is_not_claimed():
     shift = np.float32([4.0, -3.0])
     captured = cv2.remap(projected, x - shift[0], y - shift[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
     wrong = np.broadcast_to(shift + [48.0, 0.0], (h, w, 2)).astype(np.float32)
-    cfg = DEFAULT.with_sections(search={"identity": False, "sift": False})
+    cfg = ACCURATE.with_sections(search={"identity": False, "sift": False})
     pred = GeometricRefiner(cfg).predict(projected, captured, wrong)
     assert pred.claimed.mean() < 0.05 and pred.reason.startswith("repeating pattern: 100%"), pred.reason
     photo = render_procedural("natural", "urban", (h, w), np.random.default_rng(5))
@@ -277,7 +277,7 @@ def test_sift_homography_competes_unrefined_on_a_planar_pair():
     img = render_procedural("natural", "urban", (240, 320), np.random.default_rng(0))
     captured = cv2.warpPerspective(img, H_TRUE, (320, 240), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     truth = homography_flow(H_TRUE, 240, 320)
-    refiner = GeometricRefiner(BEST)
+    refiner = GeometricRefiner(ACCURATE)
     pred, info = refiner.predict_info(img, captured, truth + 1.5)
     sift = SiftRansac().predict(img, captured)
     assert np.linalg.norm(sift - truth, axis=-1).mean() < 0.05
@@ -300,8 +300,8 @@ def test_a_planar_pair_is_answered_by_a_homography_alone(picture):
         captured = cv2.warpPerspective(picture.astype(np.float32), H, (w, h), borderMode=cv2.BORDER_REFLECT)
         captured = np.clip(255 * (captured / 255) ** (1 / 2.2) + rng.normal(0, 2.0, captured.shape), 0, 255)
         network = truth + rng.normal(0, 1.5, truth.shape).astype(np.float32)
-        for margin in (0.0, DEFAULT.selection.plane_margin):
-            pred, info = GeometricRefiner(DEFAULT.with_sections(selection={"plane_margin": margin})).predict_info(
+        for margin in (0.0, ACCURATE.selection.plane_margin):
+            pred, info = GeometricRefiner(ACCURATE.with_sections(selection={"plane_margin": margin})).predict_info(
                 picture, captured.astype(np.uint8), network
             )
             errors[seed, margin] = np.linalg.norm(pred.flow - truth, axis=-1).mean()
@@ -313,7 +313,7 @@ def test_a_planar_pair_is_answered_by_a_homography_alone(picture):
 def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(samples):
     """``max_side``: the refinement of the shrunk pair, flow and confidence resized to the pair's grid;
     the default configuration refines at the pair's own size."""
-    assert DEFAULT.images.max_side is None
+    assert ACCURATE.images.max_side is None
     s = samples[1]
     img0, img1, flow = s["projected"], s["captured"], s["flow"] + 2.0  # 128 x 160, 2 px off the truth
     config = FAST.with_sections(images={"max_side": 80})
@@ -338,7 +338,7 @@ def test_the_verified_regions_plane_grows_a_partial_answer_over_the_frame(pictur
     network[:, :154] += np.float32([40.0, -20.0])
     results = {}
     for grow in (False, True):
-        cfg = DEFAULT.with_sections(search={"identity": False, "sift": False, "grow": grow})
+        cfg = ACCURATE.with_sections(search={"identity": False, "sift": False, "grow": grow})
         pred, info = GeometricRefiner(cfg).predict_info(projected, captured, network)
         results[grow] = (epe(pred.flow, {"flow": flow, "valid": valid}), pred.claimed.mean(), info.hypothesis)
     (lost, lost_claimed, _), (grown, grown_claimed, hypothesis) = results.values()
@@ -360,7 +360,7 @@ def test_a_flat_gap_is_claimed_where_the_answer_agrees_with_its_verified_plane(p
     gap &= valid
     claims = {}
     for bridge in (False, True):
-        pred = GeometricRefiner(DEFAULT.with_sections(confidence={"bridge": bridge})).predict(
+        pred = GeometricRefiner(ACCURATE.with_sections(confidence={"bridge": bridge})).predict(
             projected, captured, network
         )
         claims[bridge] = pred.claimed[gap].mean()
@@ -402,7 +402,7 @@ def test_a_rival_is_ambiguity_only_where_it_also_explains_the_images(picture):
 
 def test_grown_needs_a_partial_claim_and_a_plane_under_it(picture):
     h, w = picture.shape[:2]
-    ctx = PairContext.build(picture, picture, DEFAULT)
+    ctx = PairContext.build(picture, picture, ACCURATE)
     H = np.array([[1.01, 0.02, 3.0], [-0.01, 0.99, -2.0], [0.0, 0.0, 1.0]])
     flow = homography_flow(H, h, w)
     left = np.zeros((h, w), bool)
@@ -416,18 +416,18 @@ def test_grown_needs_a_partial_claim_and_a_plane_under_it(picture):
 
 
 def test_the_second_stage_runs_only_where_the_first_leaves_texture_unverified(picture):
-    """The default quality tries the identity and SIFT only when the network's answer claims less than
+    """The balanced quality tries the identity and SIFT only when the network's answer claims less than
     ``escalate_below`` of the textured pixels: not on a bent pair the network got right (and the answer is
     as good as the full search's), but on one where the network is lost."""
     img0, img1, gt, valid = bent_pair(picture)
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
-    pred, info = GeometricRefiner().predict_info(img0, img1, net)
+    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, net)
     assert "more starts" not in info.stages and not any(k.startswith(("identity/", "sift/")) for k in info.scores)
-    full = GeometricRefiner(BEST).predict(img0, img1, net)
+    full = GeometricRefiner(ACCURATE).predict(img0, img1, net)
     errors = [np.linalg.norm(p.flow - gt, axis=-1)[valid].mean() for p in (pred, full)]
     assert errors[0] < 0.5 and errors[0] < errors[1] + 0.05, errors
     lost = np.full_like(net, 40.0)
-    pred, info = GeometricRefiner().predict_info(img0, img1, lost)
+    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, lost)
     assert "more starts" in info.stages and any(k.startswith("sift/") for k in info.scores)
     assert pred.registered and np.linalg.norm(pred.flow - gt, axis=-1)[pred.claimed & valid].mean() < 0.6
 
@@ -445,7 +445,7 @@ def test_a_photo_of_another_picture_claims_next_to_nothing():
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(12))
     for other in ("chelsea", "coffee"):
         _, img1, _, _ = bent_pair(pictures[other], seed=5)
-        for config in (FAST, DEFAULT, BEST):
+        for config in (FAST, BALANCED, ACCURATE):
             pred = GeometricRefiner(config).predict(img0, img1, net)
             assert pred.claimed.mean() < 0.03, (other, config.search, pred.claimed.mean())
             if other == "chelsea":
