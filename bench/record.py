@@ -251,6 +251,19 @@ SETS = (
             Run(
                 "latency.json",
                 _bench(f"{_B}/latency", "latency.json", f"--baselines {BASELINES} --refine both --limit 32"),
+                "--quality accurate (the default)",
+            ),
+            *(
+                Run(
+                    f"latency-{q}.json",
+                    _bench(
+                        f"{_B}/latency",
+                        f"latency-{q}.json",
+                        f"--quality {q} --baselines dis-medium,sift-ransac --refine both --limit 32",
+                    ),
+                    f"--quality {q}",
+                )
+                for q in ("balanced", "fast")
             ),
         ),
         "dis-medium",

@@ -296,13 +296,16 @@ def external_run(report: dict) -> list[str]:
 def latency_run(report: dict, meta: dict) -> list[str]:
     rows_in = [r for r in report["results"] if r.get("ms_per_pair") is not None]
     peer = meta.get("peer") or next((r["name"] for r in rows_in if r["kind"] == "baseline"), rows_in[0]["name"])
-    base = next(r["ms_per_pair"] for r in rows_in if r["name"] == peer)
-    rows = [[f"`{r['name']}`", num(r["ms_per_pair"]), num(r["ms_per_pair"] / base)] for r in rows_in]
+    peers = [peer] + [name for name in ("sift-ransac",) if name != peer and any(r["name"] == name for r in rows_in)]
+    base = {p: next(r["ms_per_pair"] for r in rows_in if r["name"] == p) for p in peers}
+    rows = [
+        [f"`{r['name']}`", num(r["ms_per_pair"]), *(num(r["ms_per_pair"] / base[p]) for p in peers)] for r in rows_in
+    ]
     start, end = (", ".join(f"{x:.2f}" for x in meta["machine"][k]) for k in ("load_average_start", "load_average_end"))
     return [
         para(f"Data: {dataset_line(report)} Load average at the start {start} (1, 5, 15 min), at the end {end}."),
         "",
-        table(["method", "ms per pair (median)", f"x `{peer}`"], rows),
+        table(["method", "ms per pair (median)", *(f"x `{p}`" for p in peers)], rows),
         "",
     ]
 
