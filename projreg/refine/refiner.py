@@ -35,6 +35,7 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 
 from __future__ import annotations
 
+import os
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
@@ -72,8 +73,7 @@ class GeometricRefiner:
         self.config = config or QUALITIES[DEFAULT_QUALITY].refine
         self._local = threading.local()  # each thread's own DIS instance
         self._sift = SiftHomography() if self.config.search.sift else None
-        workers = self.config.search.workers
-        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="refine") if workers > 1 else None
+        self._pools: dict[int, ThreadPoolExecutor] = {}  # by process: a forked child starts its own threads
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
         """The refined flow of one pair and what was chosen (:meth:`predict_info` without the verdict)."""
@@ -303,16 +303,28 @@ class GeometricRefiner:
         best = self.select(cands, scores)
         return best, self.confidence(ctx, cands, scores, best, repeats)
 
+    def _pool(self) -> ThreadPoolExecutor | None:
+        """This process's pool of ``search.workers`` threads (None for one worker)."""
+        workers = self.config.search.workers
+        if workers < 2:
+            return None
+        pid = os.getpid()
+        if pid not in self._pools:
+            self._pools = {pid: ThreadPoolExecutor(workers, thread_name_prefix="refine")}
+        return self._pools[pid]
+
     def _map(self, fn, items: list) -> list:
-        if self._pool is None or len(items) < 2:
+        pool = self._pool()
+        if pool is None or len(items) < 2:
             return [fn(item) for item in items]
-        return list(self._pool.map(fn, items))
+        return list(pool.map(fn, items))
 
     def _submit(self, fn, *args) -> Future:
         """``fn(*args)`` on the pool when there is one (else now), as a future; nothing when the
         periodicity test is off (its one use)."""
-        if self._pool is not None and self.config.confidence.periodic:
-            return self._pool.submit(fn, *args)
+        pool = self._pool()
+        if pool is not None and self.config.confidence.periodic:
+            return pool.submit(fn, *args)
         future: Future = Future()
         future.set_result(fn(*args) if self.config.confidence.periodic else None)
         return future

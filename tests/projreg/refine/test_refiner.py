@@ -2,6 +2,8 @@
 the answer must reach (planes, bent sheets, one-sided content, walls, repeating patterns, blank and wrong
 pictures), and the stages' observable effects (escalation, growth, the bridge, the workers)."""
 
+import multiprocessing
+
 import cv2
 import numpy as np
 import pytest
@@ -450,3 +452,26 @@ def test_a_photo_of_another_picture_claims_next_to_nothing():
             assert pred.claimed.mean() < 0.03, (other, config.search, pred.claimed.mean())
             if other == "chelsea":
                 assert not pred.registered and not pred.claimed.any(), (config.search, pred.reason)
+
+
+def _refine_in_child(refiner, pair, queue) -> None:
+    queue.put(refiner.predict(*pair).flow)
+
+
+def test_a_refiner_used_before_a_fork_still_refines_in_the_child(samples):
+    """Its worker threads do not survive a fork (a DataLoader, a process pool): the child starts its own
+    (a child that waited on its parent's threads would hang: it is killed after 120 s and the test fails)."""
+    s = samples[0]
+    refiner = GeometricRefiner()
+    pair = (s["projected"], s["captured"], s["flow"] + 1.0)
+    here = refiner.predict(*pair).flow  # this process's threads now exist
+    fork = multiprocessing.get_context("fork")
+    queue = fork.Queue()
+    child = fork.Process(target=_refine_in_child, args=(refiner, pair, queue))
+    child.start()
+    try:
+        there = queue.get(timeout=120)
+    finally:
+        child.kill()
+        child.join()
+    np.testing.assert_array_equal(here, there)
