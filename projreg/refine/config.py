@@ -104,7 +104,10 @@ class ConfidenceConfig:
     registered_above: float = 0.01  # a pair whose claimed share is below this is not registered
     periodic: bool = True  # refuse pixels where the projected image repeats itself
     periodic_peak: float = 0.85  # autocorrelation peak (64 px windows) that marks a repeat
-    coarse_peak: float = 0.93  # ... in the 128 and 256 px windows
+    coarse_peak: float = 0.93  # ... in the larger windows
+    periodic_tiles: tuple[int, ...] = (64, 128, 256)  # the periodicity test's windows (px), finest first
+    periodic_lobe: float = 0.3  # autocorrelation level that bounds its central lobe (an edge's ridge)
+    repeating_share: float = 0.5  # an unverified pair whose texture repeats this much is called a repeating pattern
     bridge: bool = True  # a registered answer also claims wide flat gaps where two models agree
     bridge_px: float = 1.0  # ... within this distance of its claimed pixels' homography
 

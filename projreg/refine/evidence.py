@@ -26,31 +26,39 @@ def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, boun
     return (prior + d * scale[..., None]).astype(np.float32)
 
 
-def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.ndarray) -> str:
-    """Why a pair that passed no check is not registered: a repeating pattern when most of its texture
-    repeats itself (no check can tell the right period from the next), else ``no region verified``."""
+def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.ndarray, share: float = 0.5) -> str:
+    """Why a pair that passed no check is not registered: a repeating pattern when at least ``share`` of
+    its texture repeats itself (no check can tell the right period from the next), else ``no region
+    verified``."""
     repeats = 0.0 if repeating is None or not textured.any() else float(repeating[textured].mean())
-    if repeats >= 0.5:
+    if repeats >= share:
         period = "a flow one period off would pass every check"
         return f"repeating pattern: {100 * repeats:.0f}% of the projected texture repeats itself ({period})"
     return f"no region verified ({100 * claimed.mean():.1f}%)"
 
 
-def repeating(gray: np.ndarray, fine_peak: float = 0.85, coarse_peak: float = 0.93) -> np.ndarray:
+def repeating(
+    gray: np.ndarray,
+    fine_peak: float = 0.85,
+    coarse_peak: float = 0.93,
+    tiles: tuple[int, ...] = (64, 128, 256),
+    lobe: float = 0.3,
+) -> np.ndarray:
     """Pixels where the image repeats itself, bool ``(H, W)``: :func:`periodicity` at least ``fine_peak``
-    in the 64 px window or ``coarse_peak`` in the 128 or 256 px windows (those that fit the image).
+    in the first of ``tiles`` (px) or ``coarse_peak`` in the others (those that fit the image); ``lobe``:
+    :func:`periodicity`'s.
 
     The coarse windows ask for a closer repeat: a photograph of a regular thing (a brick wall) scores
     0.83-0.91 there, from its courses, while its detail differs from one brick to the next, which the
     photometric check sees; a repeated digital motif scores 0.98-1.00 (docs/model.md)."""
     out = np.zeros(gray.shape, bool)
-    for tile, peak in ((64, fine_peak), (128, coarse_peak), (256, coarse_peak)):
+    for i, tile in enumerate(tiles):
         if min(gray.shape) >= tile:  # a smaller image: no such window
-            out |= periodicity(gray, tile) >= peak
+            out |= periodicity(gray, tile, lobe) >= (coarse_peak if i else fine_peak)
     return out
 
 
-def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
+def periodicity(gray: np.ndarray, tile: int = 64, lobe: float = 0.3, overlap: float = 0.25) -> np.ndarray:
     """Per pixel, how well the image repeats itself around it, float32 ``(H, W)`` in [0, 1]: near 1 on a
     grating, a checkerboard or a tiled motif, whose match one period away is as good as the true
     one; low on an edge or a ramp, which stay similar under every move along them (the aperture
@@ -58,7 +66,7 @@ def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
 
     Each ``tile`` x ``tile`` window (side by side, Hann-weighted) gives its autocorrelation (FFT,
     zero-padded, divided by the window's own so a shift is not penalised for the smaller overlap);
-    the score is its highest value outside the central lobe (the connected region >= 0.3 around zero
+    the score is its highest value outside the central lobe (the connected region >= ``lobe`` around zero
     shift, which holds an edge's ridge), within half a tile; the tiles' scores are interpolated over
     the frame. The window's edge weights leave periods up to about ``0.45 tile`` visible (64: 28 px).
 
@@ -89,12 +97,12 @@ def periodicity(gray: np.ndarray, tile: int = 64) -> np.ndarray:
     window = autocorrelation(hann)[span, span]
     ac = autocorrelation(tiles)[:, span, span] / np.maximum(window, 1e-6)  # [T, tile + 1, tile + 1]
     ac = ac / np.maximum(ac[:, tile // 2, tile // 2 : tile // 2 + 1, None], 1e-6)
-    ac[:, window < 0.25 * window.max()] = 0.0
+    ac[:, window < overlap * window.max()] = 0.0  # shifts whose windows barely overlap say nothing
     scores = np.zeros(len(tiles), np.float32)
     for i, a in enumerate(ac):
         if not np.isfinite(a).all() or tiles[i].std() < 1e-3:
             continue
-        _, labels = cv2.connectedComponents((a >= 0.3).astype(np.uint8), connectivity=8)
+        _, labels = cv2.connectedComponents((a >= lobe).astype(np.uint8), connectivity=8)
         outside = labels != labels[tile // 2, tile // 2]
         scores[i] = float(np.clip(a[outside].max(initial=0.0), 0.0, 1.0))
     grid = scores.reshape(len(starts[0]), len(starts[1]))

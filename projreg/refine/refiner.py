@@ -123,7 +123,14 @@ class GeometricRefiner:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
             return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, ctx.share)
         periodic = cfg.confidence
-        pending = self._submit(repeating, ctx.normalised[0], periodic.periodic_peak, periodic.coarse_peak)
+        pending = self._submit(
+            repeating,
+            ctx.normalised[0],
+            periodic.periodic_peak,
+            periodic.coarse_peak,
+            periodic.periodic_tiles,
+            periodic.periodic_lobe,
+        )
         network, usable = network_start(ctx, flow)
         first = [network] if network.H is not None else []
         if not usable:
@@ -162,7 +169,8 @@ class GeometricRefiner:
             best = max(net, key=lambda c: scores[c.key])
             conf = self.confidence(ctx, cands, scores, best, repeats)
         claimed = conf >= CONFIDENT
-        why = "" if claimed.mean() >= cfg.confidence.registered_above else unverified(claimed, repeats, ctx.textured)
+        registered = claimed.mean() >= cfg.confidence.registered_above
+        why = "" if registered else unverified(claimed, repeats, ctx.textured, cfg.confidence.repeating_share)
         if not why and cfg.confidence.bridge:  # the answer's flat gaps, where two models of them agree
             conf = self.bridged(ctx, conf, best, cands, scores, repeats)
             claimed = conf >= CONFIDENT
