@@ -36,13 +36,13 @@ from ..utils.images import IMAGE_EXTENSIONS, load_gray
 from ..utils.outputs import folder_files, refuse_overwriting_inputs
 from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
+from .graybits import bits_agree, gray_stripe
 from .invert import invert_map
 from .patterns import PatternSet, read_patterns
 
 SATURATED = 0.995  # of full scale: a fringe photo at or above this at a pixel rejects the pixel
 MIN_CONTRAST = 0.02  # white - black, of full scale
 MIN_MODULATION = 0.15  # fringe amplitude / (white - black)
-BIT_MARGIN_PX = 2.0  # projector px from a Gray bit's own stripe edge beyond which the bit must be clear
 MIN_BIT_CONTRAST = 0.2  # |pattern - inverse| / (white - black) of a clear bit
 MIN_DECODED = 0.01  # share of projector pixels (graycode) or dots (dots) below which a decode is refused
 
@@ -199,15 +199,22 @@ def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:
 def decode_graycode(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Correspondence:
     """Dense sub-pixel decode (module docstring); ``stack`` maps pattern names without ``NN-`` to photos."""
     xp, yp, ok, noise = camera_positions(patterns, stack)
-    flow, valid = invert_map(xp, yp, ok, patterns.size, noise)
-    stats = {
-        "phase_noise_px": round(noise, 4),
+    return _on_projector_grid(xp, yp, ok, noise, patterns.size, {"phase_noise_px": round(noise, 4)})
+
+
+def _on_projector_grid(
+    xp: np.ndarray, yp: np.ndarray, ok: np.ndarray, noise: float, size: tuple[int, int], stats: dict
+) -> Correspondence:
+    """Camera -> projector positions (``(Hc, Wc)``, noise in projector px) to the correspondence on the
+    projector's ``size`` grid (:func:`~projsynth.structured.invert.invert_map`), with ``stats`` and counts."""
+    flow, valid = invert_map(xp, yp, ok, size, noise)
+    counts = {
         "camera_pixels_decoded": int(ok.sum()),
         "camera_pixels": int(ok.size),
         "projector_pixels_valid": int(valid.sum()),
         "projector_pixels": int(valid.size),
     }
-    return Correspondence(flow, valid, stats)
+    return Correspondence(flow, valid, {**stats, **counts})
 
 
 def camera_positions(
@@ -222,47 +229,16 @@ def camera_positions(
     coords, noise = [], []
     for axis, size in (("x", patterns.size[1]), ("y", patterns.size[0])):
         bits = [stack[f"gray-{axis}{b}"] - stack[f"gray-{axis}{b}-inv"] for b in range(p[f"bits_{axis}"])]
-        coarse = _gray_stripe(bits) * p["stripe"] + (p["stripe"] - 1) / 2  # [Hc, Wc] stripe centre, projector px
+        coarse = gray_stripe(bits) * p["stripe"] + (p["stripe"] - 1) / 2  # [Hc, Wc] stripe centre, projector px
         fine, modulation, saturated, spread = _phase(stack, axis, p["shifts"], p["period"])
         pos = fine + p["period"] * np.rint((coarse - fine) / p["period"])
-        ok &= _bits_agree(bits, pos, p["stripe"], contrast)
+        ok &= bits_agree(bits, pos, p["stripe"], MIN_BIT_CONTRAST * contrast)
         ok &= (modulation > MIN_MODULATION * contrast) & ~saturated
         ok &= (pos >= -0.5) & (pos <= size - 0.5)
         coords.append(pos)
         noise.append(spread)
     typical = float(np.percentile(np.maximum(*noise)[ok], 75)) if ok.any() else 0.0
     return coords[0], coords[1], ok, typical
-
-
-def _bits_agree(bits: list[np.ndarray], pos: np.ndarray, stripe: int, contrast: np.ndarray) -> np.ndarray:
-    """Where every Gray-code bit far from its own stripe edge says what the unwrapped position ``pos`` implies.
-
-    ``bits[b]`` is pattern minus inverse of bit ``b``. Bit ``b`` flips at the stripe boundaries
-    ``n * stripe - 0.5`` with ``n = 2^b (mod 2^(b+1))``; more than ``BIT_MARGIN_PX`` from those, it must
-    have the expected sign with at least ``MIN_BIT_CONTRAST`` of the white-black contrast. A noise-flipped
-    bit or a wrong unwrap fails here instead of shifting the position by whole periods.
-    """
-    n = np.floor((pos + 0.5) / stripe).astype(np.int64)
-    code = n ^ (n >> 1)
-    agree = np.ones(pos.shape, bool)
-    for b, diff in enumerate(bits):
-        t = (pos + 0.5) / stripe - 2**b
-        edge = np.abs(t - 2 ** (b + 1) * np.rint(t / 2 ** (b + 1))) * stripe
-        expected = np.where((code >> b) & 1 == 1, 1.0, -1.0)
-        agree &= (edge <= BIT_MARGIN_PX) | (diff * expected >= MIN_BIT_CONTRAST * contrast)
-    return agree
-
-
-def _gray_stripe(bits: list[np.ndarray]) -> np.ndarray:
-    """The stripe index per camera pixel from the Gray-code bits (pattern minus inverse), int64."""
-    gray = np.zeros(bits[0].shape, np.int64)
-    for b, diff in enumerate(bits):
-        gray |= (diff > 0).astype(np.int64) << b
-    binary, shift = gray.copy(), 1
-    while shift < len(bits):
-        binary ^= binary >> shift
-        shift <<= 1
-    return binary
 
 
 def _phase(stack: dict[str, np.ndarray], axis: str, shifts: int, period: int) -> tuple[np.ndarray, ...]:
