@@ -41,7 +41,7 @@ from ..utils.images import IMAGE_EXTENSIONS, load_gray
 from ..utils.outputs import folder_files, refuse_overwriting_inputs
 from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
-from .edges import decode_edges
+from .edges import decode_edges, window_noise
 from .graybits import bits_agree, gray_stripe
 from .invert import invert_map
 from .patterns import PatternSet, opencv_set, read_patterns
@@ -295,7 +295,8 @@ def decode_opencv(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Corresp
     inverted to the projector grid as the fringe decode is; ``stack`` as :func:`decode_graycode`'s."""
     p = patterns.params
     xp, yp, ok, noise, counts = decode_edges(stack, p["bits_x"], p["bits_y"], patterns.size)
-    return _on_projector_grid(xp, yp, ok, noise, patterns.size, {"edge_noise_px": round(noise, 4), **counts})
+    stats = {"edge_noise_px": round(noise, 4), **counts}
+    return _on_projector_grid(xp, yp, ok, window_noise(noise), patterns.size, stats)
 
 
 # --- graycode ---------------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from .graybits import bits_agree, gray_stripe
+from .invert import TARGET_NOISE_PX
 
 MAX_STEP = 3  # largest code step between adjacent camera pixels whose boundaries are located (camera coarser)
 WINDOW_EDGES = 1.5  # Gaussian sigma of the fit, in boundary spacings (camera px between crossings)
@@ -45,6 +46,10 @@ MIN_BIT_SNR = 3.0  # |pattern - inverse| over its noise, for a bit far from its 
 # the fits' RMS residual at this percentile is the position noise handed to invert_map (it sets its window):
 # the residual sees the crossings' scatter, not the interpolation error they share, so a high percentile
 NOISE_PERCENTILE = 95
+# the projector-side fit averages at least this many camera samples: precise positions alone would ask
+# invert_map for windows so narrow that a discrete sampling fails its surround rules (on the analytic rig
+# of test_decode.py at 240 x 320: 16% of the in-frame projector left out at 7 samples, 2.7% at 16)
+MIN_WINDOW_SAMPLES = 16
 
 
 def decode_edges(
@@ -86,6 +91,12 @@ def decode_edges(
         "camera_pixels_beyond_projector": int(beyond.sum()),
     }
     return coords[0], coords[1], ok, max(noises), stats
+
+
+def window_noise(noise_px: float) -> float:
+    """The position noise to hand :func:`~projsynth.structured.invert.invert_map`: the measured one, but
+    never below what makes its window hold ``MIN_WINDOW_SAMPLES`` samples (it holds ``(noise / target)^2``)."""
+    return max(noise_px, TARGET_NOISE_PX * float(np.sqrt(MIN_WINDOW_SAMPLES)))
 
 
 def diff_noise(stack: dict[str, np.ndarray], bits_x: int, bits_y: int) -> np.ndarray:

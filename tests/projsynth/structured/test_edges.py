@@ -1,6 +1,7 @@
 """OpenCV's Gray-code layout (``opencv-graycode``): its convention, the sub-pixel edge decoder against the
 integer decode OpenCV does on the same virtual-rig captures, and ``decode --layout opencv`` end to end."""
 
+import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -123,6 +124,38 @@ def test_daylight_keeps_what_fixed_thresholds_lose():
     assert ok.mean() < 0.1
     assert both.sum() >= 0.85 * valid.sum()
     assert np.median(np.hypot(*(result.flow - flow)[both].T)) <= 0.1
+
+
+def analytic_rig():
+    """test_decode.py's analytic rig (written apart from projsynth), loaded by path: tests are no package."""
+    spec = importlib.util.spec_from_file_location("analytic_rig", Path(__file__).with_name("test_decode.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_analytic_rig_not_projsynths_simulator():
+    """test_decode.py's rig (homography + bend, gamma, albedo texture, defocus, pixel-area integration,
+    response, noise; camera 1.25x): sub-pixel, most of the in-frame projector, nothing outside the frame."""
+    size, camera = (96, 128), (120, 160)
+    patterns = make_set("opencv-graycode", size)
+    rig = analytic_rig()
+    photos = rig.photograph(patterns.images(), camera, 1)  # [N, Hc, Wc] in [0, 1]
+    result = decode(patterns, photos)
+    truth = rig.true_forward(size)
+    py, px = np.mgrid[0 : size[0], 0 : size[1]]
+    flow = truth - np.stack([px, py], -1)
+    inside = (truth[..., 0] >= 0) & (truth[..., 0] <= camera[1] - 1) & (truth[..., 1] >= 0)
+    inside &= truth[..., 1] <= camera[0] - 1
+    both = result.valid & inside
+    err = np.hypot(*(result.flow - flow)[both].T)
+    x, y, ok = opencv_codes(np.rint(photos * 255).astype(np.int64), 7, 7, size)
+    iflow, ivalid = integer_forward(x, y, ok, size)
+    ierr = np.hypot(*(iflow - flow)[ivalid & inside].T)
+    figures = (np.median(err), np.percentile(err, 95), np.median(ierr), np.percentile(ierr, 95))
+    assert np.median(err) <= 0.04 and np.percentile(err, 95) <= 0.08, figures
+    assert np.median(err) <= 0.2 * np.median(ierr), figures
+    assert both.sum() >= 0.93 * inside.sum() and not (result.valid & ~inside).any()
 
 
 @pytest.fixture(scope="module")
