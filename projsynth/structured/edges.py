@@ -64,29 +64,31 @@ def decode_edges(
         size: the projector's ``(H, W)``.
 
     Returns:
-        ``(xp, yp, ok, noise_px, stats)``: ``(Hc, Wc)`` float64 projector x and y, ``(Hc, Wc)`` bool
-        where both are trusted, the typical noise of one position (projector px, 75th percentile) and
-        counts for ``decode.json``.
+        ``(xp, yp, ok, noise_px, stats)``: ``(Hc, Wc)`` float64 projector x and y (pixel centres at
+        integers), ``(Hc, Wc)`` bool where both are trusted, the noise of one position (projector px: the
+        fits' RMS residual at ``NOISE_PERCENTILE``, the larger axis) and, for ``decode.json``, the
+        median noise of ``diff`` in 8-bit DN and the counts of lit camera pixels and of those whose
+        code lies beyond ``size`` (a wrong projector size).
     """
     white, black = stack["white"], stack["black"]
     diffs = {
         a: [stack[f"{a}{b}"] - stack[f"{a}{b}-inv"] for b in range(n)] for a, n in (("col", bits_x), ("row", bits_y))
     }
     sigma = diff_noise(stack, bits_x, bits_y)
-    ok = white - black > MIN_CONTRAST_SNR * sigma
+    lit = white - black > MIN_CONTRAST_SNR * sigma
+    ok = lit.copy()
     coords, noises, codes = [], [], {}
     for axis, extent in (("col", size[1]), ("row", size[0])):
         code = gray_stripe(diffs[axis])
         codes[axis] = code
-        trusted = ok & bits_agree(diffs[axis], code.astype(np.float64), 1, MIN_BIT_SNR * sigma)
+        trusted = lit & bits_agree(diffs[axis], code.astype(np.float64), 1, MIN_BIT_SNR * sigma)
         pos, fit_ok, noise = _fit_edges(diffs[axis], code, trusted)
         ok &= trusted & fit_ok & (np.abs(pos - code) <= CODE_TOLERANCE_PX) & (pos >= -0.5) & (pos <= extent - 0.5)
         coords.append(pos)
         noises.append(noise)
-    lit = white - black > MIN_CONTRAST_SNR * sigma
     beyond = lit & ((codes["col"] >= size[1]) | (codes["row"] >= size[0]))
     stats = {
-        "noise_dn": round(float(np.median(sigma[lit])) * 255, 3) if lit.any() else None,
+        "diff_noise_dn": round(float(np.median(sigma[lit])) * 255, 3) if lit.any() else None,
         "camera_pixels_lit": int(lit.sum()),
         "camera_pixels_beyond_projector": int(beyond.sum()),
     }
@@ -155,7 +157,12 @@ def edge_crossings(
 
 
 def _fit_edges(diffs: list[np.ndarray], code: np.ndarray, trusted: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The local linear fit of the crossings (module docstring, step 3): ``(pos, ok, noise)`` per camera pixel."""
+    """The local linear fit of the crossings (module docstring, step 3).
+
+    Returns:
+        ``(pos, ok, noise)``: ``(Hc, Wc)`` float64 projector coordinate (the code where the fit fails),
+        ``(Hc, Wc)`` bool where it holds, and its RMS residual at ``NOISE_PERCENTILE`` (projector px).
+    """
     hc, wc = code.shape
     qx, qy, v = edge_crossings(diffs, code, trusted)
     if v.size < 3:
