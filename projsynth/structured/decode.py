@@ -103,7 +103,8 @@ def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[
 
 
 def load_ordered_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[Path]]:
-    """The photos of a set shot in another tool's order: every image directly in ``folder``, in name order.
+    """The photos of an ``opencv-graycode`` set shot with OpenCV's tools: every image directly in ``folder``,
+    in name order, as the set's order (OpenCV's files carry no pattern names).
 
     Name order is natural (``im2`` before ``im10``, as OpenCV's capture sample numbers its files),
     then case-insensitive; hidden files are skipped. Returns ``(N, Hc, Wc)`` float32 grey in [0, 1] and
