@@ -272,7 +272,9 @@ def patterns(
     kind: Annotated[
         str,
         typer.Option(
-            help="graycode (dense, sub-pixel) or dots (the paper's 11-image protocol).", metavar="graycode|dots"
+            help="graycode (dense, sub-pixel), dots (the paper's 11-image protocol) or opencv-graycode "
+            "(OpenCV's GrayCodePattern layout).",
+            metavar="KIND",
         ),
     ],
     size: Annotated[str, typer.Option(help="Projector frame HxW.", metavar="HxW")],
@@ -355,11 +357,12 @@ class _PairCommand(Command):
 
 @app.command(cls=_PairCommand)
 def decode(
-    patterns_dir: Annotated[
-        Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
-    ],
     captures: Annotated[
-        Path, typer.Option(help="Folder of the photos, named as the patterns (any extension).", metavar="DIR")
+        Path,
+        typer.Option(
+            help="Folder of the photos: named as the patterns (any extension), or in OpenCV's order by name.",
+            metavar="DIR",
+        ),
     ],
     out: Annotated[
         Path,
@@ -367,11 +370,26 @@ def decode(
             help="Folder for correspondence.exr (and the dataset with --pair).", parser=output_path, metavar="DIR"
         ),
     ],
+    patterns_dir: Annotated[
+        Path | None, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
+    ] = None,
+    layout: Annotated[
+        str,
+        typer.Option(
+            help="projsynth (photos named as --patterns) or opencv (GrayCodePattern's order; needs --projector).",
+            metavar="projsynth|opencv",
+        ),
+    ] = "projsynth",
+    projector: Annotated[
+        str | None, typer.Option(help="--layout opencv: the projector's frame HxW (height first).", metavar="HxW")
+    ] = None,
     pair: Annotated[list[Any] | None, typer.Option(metavar="PROJECTED CAPTURED", help=PAIR_HELP)] = None,
 ) -> None:
     """Decode pattern photos into the projector -> camera correspondence (and a dataset of pairs)."""
     try:
-        summary = decode_folder(patterns_dir, captures, out, [(Path(a), Path(b)) for a, b in pair or []])
+        size = None if projector is None else parse_size(projector, "--projector")
+        pairs = [(Path(a), Path(b)) for a, b in pair or []]
+        summary = decode_folder(patterns_dir, captures, out, pairs, layout=layout, projector=size)
     except ProjsynthError as e:
         raise fail("projsynth", e) from None
     typer.echo(f"{out}: {summary}", err=True)

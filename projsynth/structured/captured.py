@@ -90,19 +90,20 @@ def captured_samples(
 def write_captured_dataset(
     out: Path,
     patterns: PatternSet,
-    patterns_dir: Path,
+    patterns_dir: Path | None,
     photos: list[Path],
     samples: list[Sample],
     camera_size: tuple[int, int],
 ) -> dict:
     """Write ``samples`` as a one-shard dataset under ``out``; returns the manifest.
 
-    Re-running with the same inputs rewrites the same content; ``out`` holding another dataset
-    (a ``dataset.json`` with another config hash) is refused.
+    ``patterns_dir`` None: the photos are in another tool's layout (``opencv-graycode``), with no
+    ``patterns.json`` to hash. Re-running with the same inputs rewrites the same content; ``out``
+    holding another dataset (a ``dataset.json`` with another config hash) is refused.
     """
     capture = {
         "patterns_kind": patterns.kind,
-        "patterns_sha256": file_sha256(Path(patterns_dir) / PATTERNS_FILE),
+        "patterns_sha256": None if patterns_dir is None else file_sha256(Path(patterns_dir) / PATTERNS_FILE),
         "photos": [{"file": p.name, "sha256": file_sha256(p)} for p in photos],
         "pairs": [s.params["sources"] for s in samples],
     }

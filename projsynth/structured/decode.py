@@ -18,12 +18,17 @@ ground truth: projector pixel ``(x, y)`` is seen at camera pixel ``(x + u, y + v
    and is exact for locally affine maps. Kept where the samples surround ``X`` (centroid and spread),
    the fit is consistent (residual) and the answer lies in the camera frame; everywhere else invalid.
 
+``opencv-graycode`` (OpenCV's ``GrayCodePattern`` layout, dense, sub-pixel from the stripe edges):
+:mod:`projsynth.structured.edges` per camera pixel, then the same step 2. Its photos come either named
+as the patterns or, with ``layout="opencv"``, as any folder in name order for a given projector size.
+
 ``dots`` (the paper's sparse protocol): :mod:`projsynth.structured.dots`.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,14 +41,16 @@ from ..utils.images import IMAGE_EXTENSIONS, load_gray
 from ..utils.outputs import folder_files, refuse_overwriting_inputs
 from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
+from .edges import decode_edges, window_noise
+from .graybits import bits_agree, gray_stripe
 from .invert import invert_map
-from .patterns import PatternSet, read_patterns
+from .patterns import PatternSet, opencv_set, read_patterns
 
 SATURATED = 0.995  # of full scale: a fringe photo at or above this at a pixel rejects the pixel
 MIN_CONTRAST = 0.02  # white - black, of full scale
 MIN_MODULATION = 0.15  # fringe amplitude / (white - black)
-BIT_MARGIN_PX = 2.0  # projector px from a Gray bit's own stripe edge beyond which the bit must be clear
 MIN_BIT_CONTRAST = 0.2  # |pattern - inverse| / (white - black) of a clear bit
+MAX_BEYOND = 0.05  # share of lit camera pixels decoding beyond the given projector size that refuses it
 MIN_DECODED = 0.01  # share of projector pixels (graycode) or dots (dots) below which a decode is refused
 
 
@@ -92,6 +99,49 @@ def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[
                 f"({', '.join(p.name for p in found[name])}); keep one"
             )
         files.append(found[name][0])
+    return _read_photos(files), files
+
+
+def load_ordered_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[Path]]:
+    """The photos of an ``opencv-graycode`` set shot with OpenCV's tools: every image directly in ``folder``,
+    in name order, as the set's order (OpenCV's files carry no pattern names).
+
+    Name order is natural (``im2`` before ``im10``, as OpenCV's capture sample numbers its files),
+    then case-insensitive; hidden files are skipped. Returns ``(N, Hc, Wc)`` float32 grey in [0, 1] and
+    the files, as :func:`load_captures`.
+
+    Raises:
+        ProjsynthError: the folder is missing, holds another number of images than ``patterns`` has,
+            a photo is unreadable, or the photos differ in size.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ProjsynthError(f"--captures {folder}: not a folder of photos")
+    files = sorted(
+        (
+            p
+            for p in folder.iterdir()
+            if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS and not p.name.startswith(".")
+        ),
+        key=_natural_key,
+    )
+    if len(files) != len(patterns.names):
+        h, w = patterns.size
+        p = patterns.params
+        raise ProjsynthError(
+            f"--captures {folder}: {len(files)} images, but OpenCV's layout for a {h}x{w} (HxW) projector has "
+            f"{len(patterns.names)} ({p['bits_x']} column and {p['bits_y']} row bits, each with its inverse, then "
+            "white and black); check --projector (height x width) and keep only those photos in the folder"
+        )
+    return _read_photos(files), files
+
+
+def _natural_key(path: Path) -> list:
+    return [(0, int(t), "") if t.isdigit() else (1, 0, t.lower()) for t in re.split(r"(\d+)", path.name) if t]
+
+
+def _read_photos(files: list[Path]) -> np.ndarray:
+    """``(N, Hc, Wc)`` float32 grey of ``files``; a photo of another size than the first is an error."""
     images = [load_gray(files[0])]
     for f in files[1:]:
         img = load_gray(f)
@@ -102,14 +152,26 @@ def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[
                 "setting"
             )
         images.append(img)
-    return np.stack(images), files
+    return np.stack(images)
 
 
 CORRESPONDENCE_FILE, DECODE_FILE = "correspondence.exr", "decode.json"
+LAYOUTS = ("projsynth", "opencv")  # how decode finds each pattern's photo: by name, or in name order
 
 
-def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tuple[Path, Path]] = ()) -> str:
+def decode_folder(
+    patterns_dir: Path | None,
+    captures: Path,
+    out: Path,
+    pairs: list[tuple[Path, Path]] = (),
+    layout: str = "projsynth",
+    projector: tuple[int, int] | None = None,
+) -> str:
     """``projsynth decode``: the photos in ``captures`` of the set in ``patterns_dir`` -> ``out``.
+
+    ``layout`` (``LAYOUTS``): ``projsynth``, photos named as the patterns of ``patterns_dir``; ``opencv``,
+    no ``patterns_dir`` but the ``projector``'s ``(H, W)``: a capture in OpenCV's ``GrayCodePattern``
+    layout (kind ``opencv-graycode``), its photos taken in name order (:func:`load_ordered_captures`).
 
     Writes ``out/correspondence.exr`` (channels ``forward.u``, ``forward.v``, ``valid``, as the shards'
     flow) and ``out/decode.json`` (what was decoded, how much is valid); with ``pairs``, ``out`` is
@@ -119,17 +181,25 @@ def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tup
         A one-line summary for the user.
     """
     out = Path(out)
-    patterns = read_patterns(patterns_dir)
-    inputs = folder_files("--patterns", Path(patterns_dir)) + folder_files("--captures", Path(captures))
+    _check_layout(layout, patterns_dir, projector)
+    patterns = read_patterns(patterns_dir) if projector is None else opencv_set(projector)
+    inputs = folder_files("--captures", Path(captures))
+    inputs += folder_files("--patterns", Path(patterns_dir)) if patterns_dir is not None else []
     inputs += [(option, Path(p)) for pair in pairs for option, p in zip(("--pair", "--pair"), pair, strict=True)]
     refuse_overwriting_inputs([("--out", out)], inputs)
-    photos, files = load_captures(patterns, captures)
+    if projector is None:
+        photos, files = load_captures(patterns, captures)
+    else:
+        photos, files = load_ordered_captures(patterns, captures)
     result = decode(patterns, photos)
+    if projector is not None:
+        _require_in_projector(result, patterns)
     _require_decoded(result, patterns, photos, captures)
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
     record = {
-        "patterns": str(patterns_dir),
+        "patterns": None if patterns_dir is None else str(patterns_dir),
+        "layout": layout,
         "kind": patterns.kind,
         "projector_size": list(patterns.size),
         "camera_size": list(camera_size),
@@ -158,6 +228,32 @@ def decode_folder(patterns_dir: Path, captures: Path, out: Path, pairs: list[tup
     return f"{what} decoded into {CORRESPONDENCE_FILE}" + (f"; dataset of {len(samples)} pairs" if samples else "")
 
 
+def _check_layout(layout: str, patterns_dir: Path | None, projector: tuple[int, int] | None) -> None:
+    """Each layout's own options, and only those."""
+    if layout not in LAYOUTS:
+        raise ProjsynthError(f"--layout: {layout!r} is not one of {', '.join(LAYOUTS)}")
+    if layout == "opencv" and patterns_dir is not None:
+        raise ProjsynthError("--patterns: OpenCV's layout is given by --projector HxW; drop --patterns")
+    if layout == "opencv" and projector is None:
+        raise ProjsynthError("--projector: --layout opencv needs the projector's size HxW (e.g. 768x1024)")
+    if layout == "projsynth" and projector is not None:
+        raise ProjsynthError("--projector: sets OpenCV's layout; add --layout opencv, or drop it")
+    if layout == "projsynth" and patterns_dir is None:
+        raise ProjsynthError("--patterns: give the folder written by `projsynth patterns` (or --layout opencv)")
+
+
+def _require_in_projector(result: Correspondence, patterns: PatternSet) -> None:
+    """Refuse a projector size the codes contradict (above ``MAX_BEYOND`` of the lit camera pixels decode
+    beyond it): most often width and height swapped, which leaves the image count unchanged."""
+    beyond = result.stats["camera_pixels_beyond_projector"] / max(result.stats["camera_pixels_lit"], 1)
+    if beyond > MAX_BEYOND:
+        h, w = patterns.size
+        raise ProjsynthError(
+            f"--projector {h}x{w}: {beyond:.0%} of the lit camera pixels decode to columns or rows beyond it; "
+            f"give the projector's height first (HxW: OpenCV's width=1024, height=768 is 768x1024)"
+        )
+
+
 def _require_decoded(result: Correspondence, patterns: PatternSet, photos: np.ndarray, captures: Path) -> None:
     """Refuse a decode that found (almost) nothing: below ``MIN_DECODED`` of the projector's pixels
     (``graycode``) or of its dots, naming the likely cause."""
@@ -167,7 +263,7 @@ def _require_decoded(result: Correspondence, patterns: PatternSet, photos: np.nd
         share = float(result.valid.mean())
     if share >= MIN_DECODED:
         return
-    on, off = ("white", "black") if patterns.kind == "graycode" else ("on", "off")
+    on, off = ("on", "off") if patterns.kind == "dots" else ("white", "black")
     names = [n.split("-", 1)[1] for n in patterns.names]
     contrast = float(np.median(photos[names.index(on)] - photos[names.index(off)]))
     if contrast < MIN_CONTRAST:
@@ -190,7 +286,18 @@ def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:
     if patterns.kind == "dots":
         flow, valid, stats = decode_dots(patterns, stack)
         return Correspondence(flow, valid, stats)
+    if patterns.kind == "opencv-graycode":
+        return decode_opencv(patterns, stack)
     return decode_graycode(patterns, stack)
+
+
+def decode_opencv(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Correspondence:
+    """OpenCV's Gray-code layout, sub-pixel from the stripe edges (:mod:`projsynth.structured.edges`),
+    inverted to the projector grid as the fringe decode is; ``stack`` as :func:`decode_graycode`'s."""
+    p = patterns.params
+    xp, yp, ok, noise, counts = decode_edges(stack, p["bits_x"], p["bits_y"], patterns.size)
+    stats = {"edge_noise_px": round(noise, 4), **counts}
+    return _on_projector_grid(xp, yp, ok, window_noise(noise), patterns.size, stats)
 
 
 # --- graycode ---------------------------------------------------------------------------------------
@@ -199,15 +306,22 @@ def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:
 def decode_graycode(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Correspondence:
     """Dense sub-pixel decode (module docstring); ``stack`` maps pattern names without ``NN-`` to photos."""
     xp, yp, ok, noise = camera_positions(patterns, stack)
-    flow, valid = invert_map(xp, yp, ok, patterns.size, noise)
-    stats = {
-        "phase_noise_px": round(noise, 4),
+    return _on_projector_grid(xp, yp, ok, noise, patterns.size, {"phase_noise_px": round(noise, 4)})
+
+
+def _on_projector_grid(
+    xp: np.ndarray, yp: np.ndarray, ok: np.ndarray, noise: float, size: tuple[int, int], stats: dict
+) -> Correspondence:
+    """Camera -> projector positions (``(Hc, Wc)``, noise in projector px) to the correspondence on the
+    projector's ``size`` grid (:func:`~projsynth.structured.invert.invert_map`), with ``stats`` and counts."""
+    flow, valid = invert_map(xp, yp, ok, size, noise)
+    counts = {
         "camera_pixels_decoded": int(ok.sum()),
         "camera_pixels": int(ok.size),
         "projector_pixels_valid": int(valid.sum()),
         "projector_pixels": int(valid.size),
     }
-    return Correspondence(flow, valid, stats)
+    return Correspondence(flow, valid, {**stats, **counts})
 
 
 def camera_positions(
@@ -222,47 +336,16 @@ def camera_positions(
     coords, noise = [], []
     for axis, size in (("x", patterns.size[1]), ("y", patterns.size[0])):
         bits = [stack[f"gray-{axis}{b}"] - stack[f"gray-{axis}{b}-inv"] for b in range(p[f"bits_{axis}"])]
-        coarse = _gray_stripe(bits) * p["stripe"] + (p["stripe"] - 1) / 2  # [Hc, Wc] stripe centre, projector px
+        coarse = gray_stripe(bits) * p["stripe"] + (p["stripe"] - 1) / 2  # [Hc, Wc] stripe centre, projector px
         fine, modulation, saturated, spread = _phase(stack, axis, p["shifts"], p["period"])
         pos = fine + p["period"] * np.rint((coarse - fine) / p["period"])
-        ok &= _bits_agree(bits, pos, p["stripe"], contrast)
+        ok &= bits_agree(bits, pos, p["stripe"], MIN_BIT_CONTRAST * contrast)
         ok &= (modulation > MIN_MODULATION * contrast) & ~saturated
         ok &= (pos >= -0.5) & (pos <= size - 0.5)
         coords.append(pos)
         noise.append(spread)
     typical = float(np.percentile(np.maximum(*noise)[ok], 75)) if ok.any() else 0.0
     return coords[0], coords[1], ok, typical
-
-
-def _bits_agree(bits: list[np.ndarray], pos: np.ndarray, stripe: int, contrast: np.ndarray) -> np.ndarray:
-    """Where every Gray-code bit far from its own stripe edge says what the unwrapped position ``pos`` implies.
-
-    ``bits[b]`` is pattern minus inverse of bit ``b``. Bit ``b`` flips at the stripe boundaries
-    ``n * stripe - 0.5`` with ``n = 2^b (mod 2^(b+1))``; more than ``BIT_MARGIN_PX`` from those, it must
-    have the expected sign with at least ``MIN_BIT_CONTRAST`` of the white-black contrast. A noise-flipped
-    bit or a wrong unwrap fails here instead of shifting the position by whole periods.
-    """
-    n = np.floor((pos + 0.5) / stripe).astype(np.int64)
-    code = n ^ (n >> 1)
-    agree = np.ones(pos.shape, bool)
-    for b, diff in enumerate(bits):
-        t = (pos + 0.5) / stripe - 2**b
-        edge = np.abs(t - 2 ** (b + 1) * np.rint(t / 2 ** (b + 1))) * stripe
-        expected = np.where((code >> b) & 1 == 1, 1.0, -1.0)
-        agree &= (edge <= BIT_MARGIN_PX) | (diff * expected >= MIN_BIT_CONTRAST * contrast)
-    return agree
-
-
-def _gray_stripe(bits: list[np.ndarray]) -> np.ndarray:
-    """The stripe index per camera pixel from the Gray-code bits (pattern minus inverse), int64."""
-    gray = np.zeros(bits[0].shape, np.int64)
-    for b, diff in enumerate(bits):
-        gray |= (diff > 0).astype(np.int64) << b
-    binary, shift = gray.copy(), 1
-    while shift < len(bits):
-        binary ^= binary >> shift
-        shift <<= 1
-    return binary
 
 
 def _phase(stack: dict[str, np.ndarray], axis: str, shifts: int, period: int) -> tuple[np.ndarray, ...]:

@@ -13,6 +13,13 @@ Two kinds (docs/real-rig.md):
   is lit in bit image ``b`` when bit ``b`` of ``i`` is 1. 20 x 20 dots: 11 images. Dot centres sit at
   integer projector pixels; a dot is the disc of pixels within ``radius`` of its centre (symmetric,
   so its centroid is its centre).
+* ``opencv-graycode``: the layout of OpenCV's ``cv::structured_light::GrayCodePattern``, so that
+  captures shot with OpenCV's tools decode here. For a ``W x H`` projector, ``ceil(log2 W)`` column bits
+  and ``ceil(log2 H)`` row bits of the reflected Gray code ``g = n ^ (n >> 1)`` of the column (row)
+  index ``n``; bit ``b`` is white where bit ``b`` of ``g`` is 1. Order: for each column bit from the
+  most significant down, the pattern then its inverse; the same for the rows; then a white and a black
+  image (OpenCV's ``getImagesForShadowMasks``, appended in that order by its capture sample). No
+  fringes: the decoder finds sub-pixel positions from where each pattern and its inverse cross.
 
 Convention: images ``(H, W)`` uint8 grey; x right, y down, pixel centres at integers. Pattern names
 are ``NN-<name>`` with ``NN`` the position in the projection order; files are ``NN-<name>.png``.
@@ -34,7 +41,7 @@ from ..utils.images import png_bytes
 
 PATTERN_FORMAT = 1
 PATTERNS_FILE = "patterns.json"
-KINDS = ("graycode", "dots")
+KINDS = ("graycode", "dots", "opencv-graycode")
 DEFAULT_PERIOD, DEFAULT_SHIFTS, DEFAULT_GRID = 16, 8, (20, 20)
 MIN_PERIOD, MAX_PERIOD = 8, 1024  # fringe period, projector px
 MIN_SHIFTS, MAX_SHIFTS = 3, 64  # phase shifts per axis (each one photo)
@@ -62,6 +69,8 @@ class PatternSet:
 
     def images(self) -> list[np.ndarray]:
         """The patterns as ``(H, W)`` uint8 images, in ``names`` order."""
+        if self.kind == "opencv-graycode":
+            return opencv_images(self)
         return graycode_images(self) if self.kind == "graycode" else dot_images(self)
 
 
@@ -120,6 +129,23 @@ def dot_set(size: tuple[int, int], grid: tuple[int, int] = DEFAULT_GRID, source:
     return PatternSet("dots", (h, w), _numbered(names), params)
 
 
+def opencv_set(size: tuple[int, int]) -> PatternSet:
+    """OpenCV's ``GrayCodePattern`` layout for an ``H x W`` projector (module docstring).
+
+    Names: ``col{b}``/``col{b}-inv`` and ``row{b}``/``row{b}-inv`` (``b`` the Gray-code bit, 0 the least
+    significant), most significant bit first, then ``white`` and ``black``; ``2 * (bits_x + bits_y) + 2``
+    images in all, e.g. 42 for OpenCV's default 1024 x 768.
+    """
+    h, w = size
+    bits = {"col": (w - 1).bit_length(), "row": (h - 1).bit_length()}  # = ceil(log2 n), exactly
+    names = []
+    for axis in ("col", "row"):
+        for b in reversed(range(bits[axis])):
+            names += [f"{axis}{b}", f"{axis}{b}-inv"]
+    names += ["white", "black"]
+    return PatternSet("opencv-graycode", (h, w), _numbered(names), {"bits_x": bits["col"], "bits_y": bits["row"]})
+
+
 def _name(key: str, source: str | None) -> str:
     """How an error names a setting: the option (``--period``) or the file's key (``F: "period"``)."""
     return f"--{key}" if source is None else f'{source}: "{key}"'
@@ -143,14 +169,29 @@ def graycode_images(patterns: PatternSet) -> list[np.ndarray]:
             images.append(np.full((h, w), 255 if kind == "white" else 0, np.uint8))
         elif kind.startswith("gray-"):
             axis, b = kind[5], int(kind[6:].removesuffix("-inv"))
-            code = coords[axis] // p["stripe"]
-            on = ((code ^ (code >> 1)) >> b) & 1 == 1
-            images.append(np.where(on != kind.endswith("-inv"), 255, 0).astype(np.uint8))
+            images.append(_gray_bit(coords[axis] // p["stripe"], b, kind.endswith("-inv")))
         else:
             axis, k = kind[6], int(kind[7:])
             phase = 2 * np.pi * (coords[axis] / p["period"] - k / p["shifts"])
             images.append(np.rint(127.5 + 127.5 * np.cos(phase)).astype(np.uint8))
     return images
+
+
+def opencv_images(patterns: PatternSet) -> list[np.ndarray]:
+    h, w = patterns.size
+    index = {"col": np.arange(w)[None, :].repeat(h, 0), "row": np.arange(h)[:, None].repeat(w, 1)}
+    flat = {"white": np.full((h, w), 255, np.uint8), "black": np.zeros((h, w), np.uint8)}
+    kinds = [name.split("-", 1)[1] for name in patterns.names]
+    return [
+        flat[k] if k in flat else _gray_bit(index[k[:3]], int(k[3:].removesuffix("-inv")), k.endswith("-inv"))
+        for k in kinds
+    ]
+
+
+def _gray_bit(stripe: np.ndarray, b: int, inverse: bool) -> np.ndarray:
+    """``(H, W)`` uint8: 255 where bit ``b`` of the Gray code of ``stripe`` is 1 (0 with ``inverse``), else 0."""
+    on = ((stripe ^ (stripe >> 1)) >> b) & 1 == 1
+    return np.where(on != inverse, 255, 0).astype(np.uint8)
 
 
 def dot_images(patterns: PatternSet) -> list[np.ndarray]:
@@ -188,6 +229,11 @@ def make_set(
             if value is not None:
                 raise ProjsynthError(f"{option}: sets the fringes of --kind graycode; drop it for dots")
         return dot_set(size, grid or DEFAULT_GRID)
+    if kind == "opencv-graycode":
+        for option, value in (("--grid", grid), ("--period", period), ("--shifts", shifts)):
+            if value is not None:
+                raise ProjsynthError(f"{option}: OpenCV's layout has no such setting; drop it for opencv-graycode")
+        return opencv_set(size)
     raise ProjsynthError(f"--kind: {kind!r} is not one of {', '.join(KINDS)}")
 
 
@@ -229,6 +275,8 @@ def read_patterns(folder: Path) -> PatternSet:
             expected = graycode_set(
                 size, _int(params.get("period"), "period"), _int(params.get("shifts"), "shifts"), source=str(path)
             )
+        elif d["kind"] == "opencv-graycode":
+            expected = opencv_set(size)
         else:
             expected = dot_set(size, _ints(params.get("grid"), "grid"), source=str(path))
     except ValueError as e:
