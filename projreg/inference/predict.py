@@ -32,13 +32,14 @@ from projsynth.utils.files import write_atomic_all
 from projsynth.utils.images import list_images, load_image, png_bytes
 
 from .. import ProjregError
-from ..geometry.frames import register_any_size, resize_to
+from ..geometry.frames import register_any_size
 from ..model.checkpoint import resolve_checkpoint
 from ..prediction import CONFIDENT, Prediction
 from ..refine.config import DEFAULT_QUALITY
 from ..refine.config import quality as resolve_quality
 from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
+from .register import register_pairs
 from .runtime import OnnxNetwork, TorchNetwork, flows_resized, open_network
 from .track import Tracker
 
@@ -202,14 +203,9 @@ def predict(
     for start in range(0, len(jobs), batch_size):
         chunk = jobs[start : start + batch_size]
         pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
-        flows = flows_resized(net, [(a, resize_to(b, a.shape)) for a, b in pairs], max_side, batch_size)
-        for job, (img0, img1), flow in zip(chunk, pairs, flows, strict=True):
-
-            def register(a: np.ndarray, b: np.ndarray, flow: np.ndarray = flow) -> Prediction:
-                return Prediction(flow) if refiner is None else refiner.predict(a, b, flow)
-
-            pred = register_any_size(register, img0, img1)
-            results.append(_write(job, pred, refiner is not None, max_flow, camera=img1.shape[:2]))
+        for job, reg in zip(chunk, register_pairs(net, refiner, pairs, max_side, batch_size), strict=True):
+            pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason)
+            results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size))
             if progress:
                 progress(len(results), len(jobs))
     return results

@@ -5,6 +5,7 @@ import pytest
 from projreg.training.train import TrainConfig, train
 from projsynth.dataset.generate import generate
 from projsynth.dataset.plan import resolve_plan
+from projsynth.dataset.shards import ShardReader
 
 
 def make_shards(root, *, size=(64, 96), transforms="0,21,42,63,84,105,126,147", seed=0, split="train", blend="paper"):
@@ -63,3 +64,13 @@ def _assert_one_line_error(result, *needles):
 def one_line_error():
     """Check a CliRunner result failed with exit 2 and one ``projreg: error:`` line naming ``needles``."""
     return _assert_one_line_error
+
+
+@pytest.fixture(scope="session")
+def pairs(tiny_train):
+    """Two shard samples as (projected, captured) RGB arrays."""
+    reader = ShardReader(tiny_train)
+    try:
+        return [(s["projected"], s["captured"]) for s in (reader.read(0), reader.read(13))]
+    finally:
+        reader.close()

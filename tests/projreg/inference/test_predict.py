@@ -1,6 +1,5 @@
 import cv2
 import numpy as np
-import pytest
 import torch
 from typer.testing import CliRunner
 
@@ -15,16 +14,6 @@ from projsynth.flow.formats import read_flow_exr
 from projsynth.flow.pictures import flow_to_color
 
 CPU = torch.device("cpu")
-
-
-@pytest.fixture(scope="module")
-def pairs(tiny_train):
-    """Two shard samples as (projected, captured) RGB arrays."""
-    reader = ShardReader(tiny_train)
-    try:
-        return [(s["projected"], s["captured"]) for s in (reader.read(0), reader.read(13))]
-    finally:
-        reader.close()
 
 
 def _write(path, rgb):

@@ -1,0 +1,83 @@
+"""Registering pairs held in memory: the network on a batch, then the refinement of each pair, whatever
+the camera's size (:func:`register_pairs`); what ``predict`` writes and :class:`projreg.api.Registrar`
+returns.
+
+Conventions: images uint8 RGB ``(H, W, 3)`` (the captured one of any size); flows float32 ``(H, W, 2)``
+on the projected grid, forward, in captured pixels.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import ProjregError
+from ..geometry.frames import flow_to_captured, frame_scale, resize_to
+from ..refine.refiner import GeometricRefiner
+from .runtime import Network, flows_resized
+
+
+@dataclass(frozen=True)
+class Registration:
+    """One registered pair.
+
+    ``flow``: float32 ``(H, W, 2)`` (module conventions); ``claimed``: bool ``(H, W)``, the pixels the
+    answer vouches for (``predict``'s EXR ``valid``); ``confidence``: float32 ``(H, W)`` in [0, 1]
+    (claimed where >= ``CONFIDENT``; None without the refinement); ``registered``: False when the pair
+    could not be registered at all, ``reason`` says why (its flow is then a placeholder and nothing is
+    claimed); ``camera_size``: the captured image's ``(H, W)``; ``timings``: milliseconds per stage
+    (``network``, ``refine``); ``step``: for tracking, how the frame was registered (``full``,
+    ``tracked`` or ``lost``), else ``""``.
+    """
+
+    flow: np.ndarray
+    claimed: np.ndarray
+    confidence: np.ndarray | None
+    registered: bool
+    reason: str
+    camera_size: tuple[int, int]
+    timings: dict[str, float] = field(default_factory=dict)
+    step: str = ""
+
+
+def register_pairs(
+    net: Network,
+    refiner: GeometricRefiner | None,
+    pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+    max_side: int,
+    batch_size: int = 1,
+) -> list[Registration]:
+    """Each pair registered: the network on the pair (the captured image resized to the projected one,
+    the pair shrunk to ``max_side``), ``batch_size`` pairs of one size per call, then the refinement
+    (None: the network alone, every pixel claimed); flows in each camera's own pixels."""
+    same = [(check_image("projected", a), resize_to(check_image("captured", b), a.shape)) for a, b in pairs]
+    t0 = time.perf_counter()
+    flows = flows_resized(net, same, max_side, batch_size)
+    network_ms = 1000 * (time.perf_counter() - t0) / max(len(pairs), 1)
+    out = []
+    for (a, b), flow, (_, captured) in zip(same, flows, pairs, strict=True):
+        camera = captured.shape[:2]
+        scale = frame_scale(a.shape, captured.shape)
+        if refiner is None:
+            claimed = np.ones(a.shape[:2], bool)
+            out.append(
+                Registration(flow_to_captured(flow, scale), claimed, None, True, "", camera, {"network": network_ms})
+            )
+            continue
+        t0 = time.perf_counter()
+        pred, info = refiner.predict_info(a, b, flow)
+        timings = {"network": network_ms, "refine": 1000 * (time.perf_counter() - t0)}
+        flow = flow_to_captured(pred.flow, scale)
+        out.append(Registration(flow, pred.claimed, info.confidence, pred.registered, pred.reason, camera, timings))
+    return out
+
+
+def check_image(name: str, image: np.ndarray) -> np.ndarray:
+    """``image`` as a uint8 RGB ``(H, W, 3)`` array, or one line naming it."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ProjregError(f"{name}: expected a uint8 RGB array (H, W, 3), got {image.dtype} {image.shape}")
+    return image
