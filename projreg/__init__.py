@@ -1,7 +1,19 @@
-"""projreg: the SSJM registration network: train, benchmark and apply it to projector-camera pairs."""
+"""projreg: the SSJM registration network: train, benchmark and apply it to projector-camera pairs.
 
-__version__ = "0.2.0"
+The in-memory API (:mod:`projreg.api`, docs/api.md) is exported here: ``Registrar``, ``Registration``,
+``compensate``, ``end_point_error``; it is imported on first use (it loads torch).
+"""
+
+from .errors import ProjregError
+from .versions import __version__
+
+_API = ("Registrar", "Registration", "compensate", "end_point_error")
+__all__ = ["ProjregError", "__version__", *_API]
 
 
-class ProjregError(Exception):
-    """The one error the library raises for bad input; ``cli`` prints it as one line, exit 2."""
+def __getattr__(name: str):  # noqa: ANN202 - the API's names, loaded on first use
+    if name in _API:
+        from . import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'projreg' has no attribute {name!r}")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import ProjregError
+from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import flow_to_captured, frame_scale, resize_to
 from .inference.compensate import compensate as _prewarp

@@ -14,7 +14,7 @@ import typer
 from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
 from projsynth.utils.cores import available_cores
 
-from . import ProjregError
+from .errors import ProjregError
 from .refine.config import DEFAULT_QUALITY
 
 app = typer.Typer(**PLAIN_HELP, help="Train, benchmark and apply the SSJM projector-camera registration network.")

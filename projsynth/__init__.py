@@ -4,13 +4,21 @@ Convention (everywhere in this package): images are ``H x W x 3`` uint8 RGB, ori
 ``x`` right, ``y`` down, pixel centres at integer coordinates. Flow is forward,
 projected -> captured, on the projected grid: ``flow[y, x] = (u, v)`` means projected pixel
 ``(x, y)`` is seen at camera pixel ``(x + u, y + v)``.
+
+The in-memory API (:mod:`projsynth.api`, docs/api.md) is exported here: ``open_dataset``,
+``render_pair``, ``make_patterns``, ``decode_photos``; it is imported on first use.
 """
 
-__version__ = "0.2.0"
+from .errors import ProjsynthError
+from .versions import FORMAT_VERSION, READABLE_FORMATS, __version__
 
-FORMAT_VERSION = 2  # 2: Fletcher-32 on every fixed-size dataset, CRC-32 of the variable-length ones
-READABLE_FORMATS = (1, 2)  # what the readers accept (docs/format.md)
+_API = ("Dataset", "open_dataset", "render_pair", "make_patterns", "decode_photos")
+__all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "ProjsynthError", "__version__", *_API]
 
 
-class ProjsynthError(Exception):
-    """The one error the library raises for bad input; ``cli`` prints it as one line, exit 2."""
+def __getattr__(name: str):  # noqa: ANN202 - the API's names, loaded on first use
+    if name in _API:
+        from . import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'projsynth' has no attribute {name!r}")

@@ -9,7 +9,6 @@ from typing import Annotated, Any
 import cv2
 import typer
 
-from . import ProjsynthError
 from .dataset.export import export as export_samples
 from .dataset.export import preview as preview_sheet
 from .dataset.generate import default_shard_size, generate, merge
@@ -17,6 +16,7 @@ from .dataset.plan import parse_size, resolve_plan
 from .dataset.transforms import load_table, table_to_toml
 from .dataset.verify import inspect as inspect_dataset
 from .dataset.verify import verify as verify_dataset
+from .errors import ProjsynthError
 from .structured.capture import capture as capture_scene
 from .structured.decode import decode_folder
 from .structured.patterns import make_set, parse_grid, read_patterns, write_patterns

@@ -32,7 +32,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.homography import SiftHomography, homography_flow
 from ..geometry.images import to_gray
 from ..prediction import Prediction

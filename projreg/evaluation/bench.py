@@ -41,11 +41,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from projsynth import ProjsynthError
 from projsynth.dataset.shards import ShardReader
+from projsynth.errors import ProjsynthError
 from projsynth.utils.outputs import folder_files, refuse_overwriting_inputs
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.frames import register_any_size, resize_to
 from ..inference.track import JitterAccumulator
 from ..model.checkpoint import reference_checkpoint

@@ -33,10 +33,10 @@ import numpy as np
 from skimage.color import deltaE_ciede2000, rgb2lab
 from skimage.metrics import structural_similarity
 
-from projsynth import ProjsynthError
 from projsynth.dataset.rerender import Rerenderer, View
+from projsynth.errors import ProjsynthError
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..inference.compensate import compensate
 from ..inference.radiometric import calibrate, solve, to_linear
 

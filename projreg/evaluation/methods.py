@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..inference.runtime import flows_resized, open_network
 from ..inference.track import FlowTracker, Tracker
 from ..model.checkpoint import reference_checkpoint, resolve_checkpoint

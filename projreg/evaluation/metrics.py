@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 BUCKETS = ("s0-10", "s10-40", "s40+")
 THRESHOLDS = (1, 3, 5)

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.utils.files import write_atomic_all
 from projsynth.utils.images import png_bytes
 
-from .. import ProjregError
+from ..errors import ProjregError
 from .closedloop import sheet_header
 from .metrics import BUCKETS, THRESHOLDS
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.flow.formats import read_flow_exr
 from projsynth.utils.images import load_image
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.warp import pixel_maps
 from .outputs import guard_outputs, require_suffix, write_png
 from .radiometric import CLIPPED_SHARE, calibrate, solve

@@ -26,11 +26,12 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.utils.files import file_sha256, write_atomic_all
 
-from .. import ProjregError, __version__
+from ..errors import ProjregError
 from ..model.net import SSJMFlow
+from ..versions import __version__
 
 INPUTS = ("projected", "captured")
 OUTPUT = "flow"

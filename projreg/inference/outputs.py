@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.utils.files import write_atomic
 from projsynth.utils.images import png_bytes
 from projsynth.utils.outputs import refuse_overwriting_inputs
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 
 def require_suffix(path: Path, suffix: str, option: str) -> None:

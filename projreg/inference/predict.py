@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.flow.formats import encode_flow_exr
 from projsynth.flow.pictures import flow_picture, scale_of
 from projsynth.utils.files import write_atomic_all
 from projsynth.utils.images import list_images, load_image, png_bytes
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.frames import register_any_size
 from ..model.checkpoint import resolve_checkpoint
 from ..prediction import CONFIDENT, Prediction

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 FLOOR_PERCENTILES = (0, 25, 50, 75, 90, 95, 99)
 SCALE_PERCENTILES = (1, 5, 10, 25, 50)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.frames import flow_to_captured, frame_scale, resize_to
 from ..refine.refiner import GeometricRefiner
 from .runtime import Network, flows_resized

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.frames import resize_flow, shrink
 from ..model.net import SSJMFlow
 from .onnx_export import INPUTS, OUTPUT

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 
 class ResidualBlock(nn.Module):

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import torch
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.utils.files import write_atomic
 
-from .. import ProjregError
+from ..errors import ProjregError
 from .net import SSJMFlow, checked_config
 
 

@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 
 def coords_grid(b: int, h: int, w: int, device=None, dtype=None) -> torch.Tensor:

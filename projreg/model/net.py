@@ -13,7 +13,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from .. import ProjregError
+from ..errors import ProjregError
 from .backbone import CNNEncoder
 from .matching import (
     ConvexUpsampler,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 
 def saliency_energy(x: torch.Tensor, lam: float) -> torch.Tensor:

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 
 def sine_position_encoding(b: int, c: int, h: int, w: int, device=None, dtype=None) -> torch.Tensor:

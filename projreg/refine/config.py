@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
 

@@ -43,7 +43,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.frames import resize_flow, shrink
 from ..geometry.homography import SiftHomography, fit_homography, homography_flow
 from ..prediction import CONFIDENT, Prediction

@@ -23,10 +23,10 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from projsynth import ProjsynthError
 from projsynth.dataset.shards import ShardReader
+from projsynth.errors import ProjsynthError
 
-from .. import ProjregError
+from ..errors import ProjregError
 from ..geometry.frames import frame_scale, resize_to, truth_to_projected_frame
 
 

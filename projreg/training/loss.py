@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from .. import ProjregError
+from ..errors import ProjregError
 
 
 def sequence_loss(

@@ -33,12 +33,13 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader
 
-from projsynth import ProjsynthError
+from projsynth.errors import ProjsynthError
 from projsynth.utils.files import write_atomic
 
-from .. import ProjregError, __version__
+from ..errors import ProjregError
 from ..model.checkpoint import atomic_save, load_checkpoint, require_model, resolve_checkpoint
 from ..model.net import SSJMFlow, build_model, count_parameters
+from ..versions import __version__
 from .data import Augment, ShardDataset, StreamSampler
 from .distributed import (
     checked_collective_tensor,

@@ -10,7 +10,7 @@ Convention: images are ``H x W x 3`` uint8 RGB, origin top-left, ``x`` right, ``
 import cv2
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 
 KINDS = ("natural", "generated")
 THEMES = ("urban", "rural", "prairie", "forest", "ocean")

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..utils.images import list_images, load_image
 from .procedural import KINDS, THEMES
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..flow.formats import write_flo
 from ..flow.pictures import fit, flow_picture, flow_to_color, font_scale, legend, put_label, scale_of, text_height
 from ..utils.files import write_atomic

@@ -22,8 +22,9 @@ from pathlib import Path
 import cv2
 from threadpoolctl import threadpool_limits
 
-from .. import FORMAT_VERSION, ProjsynthError, __version__
+from ..errors import ProjsynthError
 from ..utils.jit import KERNELS, uncompiled_kernels
+from ..versions import FORMAT_VERSION, __version__
 from .plan import Plan, make_sample, sample_key, source_images
 from .shards import (
     MANIFEST,

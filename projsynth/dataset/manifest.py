@@ -12,9 +12,10 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 
-from .. import READABLE_FORMATS, ProjsynthError
 from ..content.sources import SPLITS
+from ..errors import ProjsynthError
 from ..sim.motion import MOTIONS
+from ..versions import READABLE_FORMATS
 from .plan import CAPTURED_PLAN_KEYS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, PLAN_KEYS, SEQUENCE_KEYS, plan_hash
 
 

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import FORMAT_VERSION, ProjsynthError, __version__
 from ..content.procedural import THEMES, render_procedural
 from ..content.sources import SPLITS, FolderSource, SourceImage, fit_to_size
+from ..errors import ProjsynthError
 from ..sim.motion import FRAME_RATE_HZ, MOTIONS, draw_trajectory, moved_scene
 from ..sim.photometric import BLENDS
 from ..sim.render import render
@@ -32,6 +32,7 @@ from ..sim.rig import make_scene
 from ..sim.scene import Scene
 from ..utils.images import load_image
 from ..utils.ranges import draw
+from ..versions import FORMAT_VERSION, __version__
 from .transforms import TransformTable, load_table, parse_selection
 
 ROLES = ("natural_on_generated", "generated_on_natural")

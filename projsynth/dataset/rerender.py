@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..sim.render import alpha_field, camera_view, expose
 from .plan import Plan, resolve_plan, sample_key, sample_scene, source_images
 from .shards import PLAN_FILE, read_json

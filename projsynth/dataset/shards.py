@@ -17,7 +17,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..flow.formats import decode_flow_exr, encode_flow_exr
 from ..utils.files import file_sha256, write_atomic
 from .manifest import manifest_problems

@@ -15,7 +15,7 @@ import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..utils.ranges import Ranges
 
 TABLE_VERSION = "builtin-v1"

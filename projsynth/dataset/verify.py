@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..flow.formats import decode_flow_exr
 from ..utils.files import file_sha256
 from .manifest import manifest_problems

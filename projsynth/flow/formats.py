@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..utils.files import write_atomic
 from ..utils.native import native_output_silenced
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from .formats import _as_flow, _as_valid
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import ProjsynthError, __version__
 from ..content.procedural import render_procedural
 from ..content.sources import fit_to_size
 from ..dataset.transforms import TransformTable
+from ..errors import ProjsynthError
 from ..flow.formats import encode_flow_exr
 from ..sim.photometric import BLENDS
 from ..sim.render import alpha_field, camera_view, ground_truth, photograph
@@ -37,6 +37,7 @@ from ..utils.files import remove_stale_temporaries, write_atomic_all
 from ..utils.images import load_image, png_bytes
 from ..utils.outputs import folder_files, refuse_overwriting_inputs
 from ..utils.ranges import draw
+from ..versions import __version__
 from .patterns import PatternSet
 
 CAPTURE_FILE, TRUTH_FILE = "capture.json", "truth.exr"

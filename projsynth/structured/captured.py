@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import FORMAT_VERSION, ProjsynthError, __version__
 from ..dataset.plan import Sample, plan_hash
 from ..dataset.shards import (
     MANIFEST,
@@ -32,8 +31,10 @@ from ..dataset.shards import (
     write_json_atomic,
     write_shard,
 )
+from ..errors import ProjsynthError
 from ..utils.files import file_sha256
 from ..utils.images import load_image
+from ..versions import FORMAT_VERSION, __version__
 from .patterns import PATTERNS_FILE, PatternSet
 
 CAPTURED_ROLE = "captured"

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from ..flow.formats import encode_flow_exr
 from ..utils.files import remove_stale_temporaries, write_atomic_all
 from ..utils.images import IMAGE_EXTENSIONS, load_gray

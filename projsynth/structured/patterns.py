@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import ProjsynthError
 from ..dataset.plan import MAX_SIZE, MIN_SIZE
+from ..errors import ProjsynthError
 from ..utils.files import remove_stale_temporaries, write_atomic_all
 from ..utils.images import png_bytes
 

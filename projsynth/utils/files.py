@@ -7,7 +7,7 @@ import os
 import secrets
 from pathlib import Path
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 
 
 def write_atomic(path: Path, data: bytes) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 from .native import native_output_silenced
 
 

@@ -11,7 +11,7 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from .. import ProjsynthError
+from ..errors import ProjsynthError
 
 Named = tuple[str, Path | None]  # (option, path); None: not given
 

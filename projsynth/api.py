@@ -1,0 +1,104 @@
+"""projsynth's in-memory API: datasets read as arrays, one sample rendered for given pictures, structured
+light made and decoded without files (docs/api.md). Nothing here imports torch.
+
+Conventions: images uint8 RGB ``(H, W, 3)`` (patterns and their photos gray ``(H, W)``); a flow is
+float32 ``(H, W, 2)`` on the projected grid, forward (projected -> captured), in captured pixels, with
+its bool ``(H, W)`` ``valid`` mask; sizes are ``(H, W)``. Errors are :class:`projsynth.ProjsynthError`
+with the CLI's one-line messages.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .dataset.plan import Sample, make_sample, resolve_plan
+from .dataset.shards import ShardReader
+from .errors import ProjsynthError
+from .structured.decode import Correspondence, decode
+from .structured.patterns import PatternSet, make_set
+
+
+class Dataset(Sequence[dict]):
+    """A dataset directory's samples by index, as dicts of arrays (``ShardReader.read``): ``projected``,
+    ``captured``, ``flow``, ``valid``, ``params``. Use it in a ``with`` block, or :meth:`close` it."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.reader = ShardReader(Path(path))
+
+    def __len__(self) -> int:
+        return len(self.reader)
+
+    def __getitem__(self, k: int) -> dict:  # type: ignore[override]
+        if not -len(self) <= k < len(self):
+            raise IndexError(f"sample {k} of a dataset of {len(self)}")
+        return self.reader.read(k % len(self))
+
+    def __iter__(self) -> Iterator[dict]:
+        return (self[k] for k in range(len(self)))
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def __enter__(self) -> Dataset:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_dataset(path: str | Path) -> Dataset:
+    """The samples of a ``projsynth gen`` dataset directory (checked like ``projreg bench`` reads it)."""
+    return Dataset(path)
+
+
+def render_pair(
+    projected: np.ndarray,
+    background: np.ndarray,
+    transform: int,
+    *,
+    seed: int = 0,
+    blend: str = "paper",
+) -> Sample:
+    """One sample of built-in transform ``transform`` (0..159, docs/transforms.md) for the given pictures
+    (uint8 RGB of one size: what the projector shows, and what the surface shows beneath it), rendered
+    with exact ground truth as ``projsynth gen`` renders its samples (``seed``, ``blend`` as its options)."""
+    for name, image in (("projected", projected), ("background", background)):
+        image = np.asarray(image)
+        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+            raise ProjsynthError(f"{name}: expected a uint8 RGB array (H, W, 3), got {image.dtype} {image.shape}")
+    if projected.shape != background.shape:
+        raise ProjsynthError(f"projected {projected.shape} and background {background.shape} differ in size")
+    plan = resolve_plan(
+        size=projected.shape[:2], seed=seed, split="test", pairs=1, transforms=str(transform), blend=blend
+    )
+    origin = {"natural": ("projected", None), "generated": ("background", None)}
+    return make_sample(plan, 0, images=(projected, background, origin))
+
+
+def make_patterns(kind: str, size: tuple[int, int], **options: int | tuple[int, int]) -> PatternSet:
+    """A structured-light pattern set (``graycode``, ``dots`` or ``opencv-graycode``) for a projector of
+    ``size``; ``options`` as ``projsynth patterns``' (``period``, ``shifts``, ``grid``). Its ``images()``
+    are the patterns, uint8 ``(H, W)``, in projection order."""
+    return make_set(kind, tuple(size), **options)
+
+
+def decode_photos(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Correspondence:
+    """The camera's photos of ``patterns`` (uint8 or uint16, gray ``(Hc, Wc)`` or RGB, in projection order)
+    decoded: ``flow`` and ``valid`` on the projector grid, ``stats``; as ``projsynth decode`` reads them
+    from files (grey in [0, 1] at full bit depth, colour as the mean of the channels)."""
+    gray = []
+    for p in photos:
+        p = np.asarray(p)
+        if p.dtype not in (np.uint8, np.uint16) or p.ndim not in (2, 3):
+            raise ProjsynthError(f"photos: expected uint8 or uint16 images, got {p.dtype} {p.shape}")
+        g = p.astype(np.float32) / np.float32(np.iinfo(p.dtype).max)
+        gray.append(g if g.ndim == 2 else g[..., :3].mean(axis=-1))
+    if len({g.shape for g in gray}) > 1:
+        raise ProjsynthError(f"photos of several sizes: {sorted({g.shape for g in gray})}")
+    return decode(patterns, np.stack(gray))
+
+
+__all__ = ["Dataset", "decode_photos", "make_patterns", "open_dataset", "render_pair"]

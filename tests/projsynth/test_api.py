@@ -1,0 +1,38 @@
+"""projsynth's in-memory API: the package root exports it, lazily; bad arrays are one line."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import projsynth
+from projsynth import ProjsynthError
+
+
+def test_the_roots_export_the_api_and_importing_them_loads_neither_api_nor_torch():
+    code = (
+        "import sys, projsynth, projreg\n"
+        "print('projsynth.api' in sys.modules, 'projreg.api' in sys.modules, 'torch' in sys.modules)\n"
+        "print(projsynth.open_dataset.__module__, projreg.Registrar.__module__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[0] == "False False False" and out[1] == "projsynth.api projreg.api"
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        projsynth.nothing  # noqa: B018
+
+
+def test_bad_arrays_are_refused_with_one_line():
+    rgb = np.zeros((64, 96, 3), np.uint8)
+    with pytest.raises(ProjsynthError, match=r"^background: expected a uint8 RGB array"):
+        projsynth.render_pair(rgb, rgb.astype(np.float32), 0)
+    with pytest.raises(ProjsynthError, match="differ in size"):
+        projsynth.render_pair(rgb, rgb[:32], 0)
+    patterns = projsynth.make_patterns("opencv-graycode", (32, 48))
+    photos = patterns.images()
+    with pytest.raises(ProjsynthError, match="photos of several sizes"):
+        projsynth.decode_photos(patterns, [*photos[:-1], photos[-1][:16]])
+    with pytest.raises(ProjsynthError, match="expected uint8 or uint16 images"):
+        projsynth.decode_photos(patterns, [p.astype(np.float64) for p in photos])
+    exact = projsynth.decode_photos(patterns, photos)  # the projector seen by itself: zero flow
+    assert exact.valid.mean() > 0.8 and np.abs(exact.flow[exact.valid]).max() < 0.05
