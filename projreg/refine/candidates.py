@@ -99,10 +99,12 @@ def identity_start(ctx: PairContext) -> Start:
 def sift_start(ctx: PairContext, sift: SiftHomography, projected: np.ndarray, captured: np.ndarray) -> Start | None:
     """SIFT + RANSAC's homography of the pair as a start, when it finds a proper, well conditioned one.
 
-    SIFT runs on the pair shrunk to ``search.sift_side`` (the start only has to fall in the right basin:
+    SIFT runs on the pair, or on it shrunk to ``search.sift_side`` (the start only has to fall in the right basin:
     the refinement measures the rest) and its homography is brought back to the pair's pixels."""
     side = ctx.config.search.sift_side
-    gray0, gray1 = shrink(to_gray(projected), side), shrink(to_gray(captured), side)
+    gray0, gray1 = to_gray(projected), to_gray(captured)
+    if side is not None:
+        gray0, gray1 = shrink(gray0, side), shrink(gray1, side)
     H, status, _ = sift(gray0, gray1)
     if status != "ok":
         return None

@@ -66,7 +66,7 @@ class SearchConfig:
 
     identity: bool = True  # also start from the identity (always when the network's flow has no homography)
     sift: bool = True  # also start from a SIFT + RANSAC homography of the pair
-    sift_side: int = 512  # ... found on the pair shrunk to this longer side
+    sift_side: int | None = None  # ... found on the pair shrunk to this longer side (None: its own size)
     first_views: tuple[str, ...] = ("normalised", "plain", "albedo")  # views the first stage refines on
     escalate_below: float = 1.0  # the second stage (the identity and SIFT starts, the views not in
     # first_views) runs only when the first stage's answer claims less than this share of the textured
@@ -151,6 +151,8 @@ class RefineConfig:
         for name in ("grow_below", "escalate_below"):
             if not 0 <= getattr(se, name) <= 1:
                 raise ProjregError(f"refine search.{name} must be in [0, 1], got {getattr(se, name)}")
+        if se.sift_side is not None and se.sift_side < MIN_SIDE:
+            raise ProjregError(f"refine search.sift_side must be >= {MIN_SIDE} or None, got {se.sift_side}")
         if se.workers < 1:
             raise ProjregError(f"refine search.workers must be >= 1, got {se.workers}")
         for name in ("plane_margin", "plane_agree_px"):

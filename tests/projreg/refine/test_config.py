@@ -17,6 +17,7 @@ from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUA
         ({"search": {"grow_below": 1.5}}, "search.grow_below"),
         ({"search": {"escalate_below": -0.1}}, "search.escalate_below"),
         ({"search": {"workers": 0}}, "search.workers"),
+        ({"search": {"sift_side": 16}}, "search.sift_side"),
         ({"selection": {"plane_margin": -0.1}}, "selection.plane_margin"),
         ({"selection": {"plane_agree_px": -1.0}}, "selection.plane_agree_px"),
         ({"confidence": {"radius": 0}}, "confidence.radius"),
