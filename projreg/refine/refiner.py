@@ -38,7 +38,7 @@ from __future__ import annotations
 import os
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -62,6 +62,21 @@ from .confidence import gap_confidence, pixel_confidence
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, flow_distance
 from .evidence import repeating, unverified
+
+
+@dataclass
+class Search:
+    """One pair's search so far: its context, the network's start, the candidates in the order tried,
+    their scores, the stages run, the periodicity map, and the current winner and its confidence."""
+
+    ctx: PairContext
+    network: Start
+    cands: list[Candidate]
+    scores: dict[str, float]
+    stages: list[str]
+    repeats: np.ndarray | None = None
+    best: Candidate | None = None
+    conf: np.ndarray | None = None
 
 
 class GeometricRefiner:
@@ -117,19 +132,25 @@ class GeometricRefiner:
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
-        cfg = self.config
-        ctx = PairContext.build(projected, captured, cfg)
-        if ctx.share < cfg.images.textureless_below:
+        ctx = PairContext.build(projected, captured, self.config)
+        if ctx.share < self.config.images.textureless_below:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
             return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, ctx.share)
-        periodic = cfg.confidence
+        search = self._search(ctx, projected, captured, flow, identity)
+        return self._verdict(search)
+
+    def _search(
+        self, ctx: PairContext, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool
+    ) -> Search:
+        """Propose, refine, score and select, verify, escalate, grow (module docstring, stages 2-7)."""
+        cfg, conf_cfg = self.config, self.config.confidence
         pending = self._submit(
             repeating,
             ctx.normalised[0],
-            periodic.periodic_peak,
-            periodic.coarse_peak,
-            periodic.periodic_tiles,
-            periodic.periodic_lobe,
+            conf_cfg.periodic_peak,
+            conf_cfg.coarse_peak,
+            conf_cfg.periodic_tiles,
+            conf_cfg.periodic_lobe,
         )
         network, usable = network_start(ctx, flow)
         first = [network] if network.H is not None else []
@@ -138,52 +159,55 @@ class GeometricRefiner:
         views = list(ctx.views())
         first_views = [v for v in views if v in cfg.search.first_views]
         more = identity and (cfg.search.identity or cfg.search.sift)
-        stages = ["network"]
         one_stage = cfg.search.escalate_below >= 1 or not first_views
         if one_stage:  # every start on every view, in one stage
-            cands = self._stage(
-                ctx, first + (self._second_starts(ctx, projected, captured, usable) if more else []), views
-            )
-            stages += ["more starts"] if more else []
-        else:
-            cands = self._stage(ctx, first, first_views)
-        scores = {c.key: ctx.score(c.key, c.flow) for c in cands}
-        best = self.select(cands, scores)
-        repeats = pending.result() if periodic.periodic else None
-        conf = self.confidence(ctx, cands, scores, best, repeats)
-        rest = [v for v in views if v not in first_views]
-        if not one_stage and (more or rest) and claimed_share(conf, ctx) < cfg.search.escalate_below:
             second = self._second_starts(ctx, projected, captured, usable) if more else []
-            cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
-            stages.append("more starts")
-            best, conf = self._reselect(ctx, cands, scores, repeats)
-        grown = grown_start(ctx, best.flow, conf >= CONFIDENT) if cfg.search.grow else None
+            cands, stages = self._stage(ctx, first + second, views), ["network"] + (["more starts"] if more else [])
+        else:
+            cands, stages = self._stage(ctx, first, first_views), ["network"]
+        search = Search(ctx, network, cands, {}, stages)
+        search.repeats = pending.result() if conf_cfg.periodic else None
+        self._reselect(search)
+        rest = [v for v in views if v not in first_views]
+        if not one_stage and (more or rest) and claimed_share(search.conf, ctx) < cfg.search.escalate_below:
+            second = self._second_starts(ctx, projected, captured, usable) if more else []
+            search.cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
+            search.stages.append("more starts")
+            self._reselect(search)
+        grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if cfg.search.grow else None
         if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
-            cands += self._stage(ctx, [grown], views)
-            stages.append("grown")
-            best, conf = self._reselect(ctx, cands, scores, repeats)
-        net = [c for c in cands if c.hypothesis == "network"]
-        if (conf >= CONFIDENT).mean() < cfg.confidence.registered_above and net and best.hypothesis != "network":
+            search.cands += self._stage(ctx, [grown], views)
+            search.stages.append("grown")
+            self._reselect(search)
+        return search
+
+    def _verdict(self, search: Search) -> tuple[Prediction, RefineInfo]:
+        """Registered or not, and why; the bridge for a registered answer; the network's homography for one
+        that is not (module docstring, stages 7-8)."""
+        ctx, cfg, scores = search.ctx, self.config.confidence, search.scores
+        net = [c for c in search.cands if c.hypothesis == "network"]
+        if (search.conf >= CONFIDENT).mean() < cfg.registered_above and net and search.best.hypothesis != "network":
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than another start's
-            best = max(net, key=lambda c: scores[c.key])
-            conf = self.confidence(ctx, cands, scores, best, repeats)
+            search.best = max(net, key=lambda c: scores[c.key])
+            search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
+        best, conf = search.best, search.conf
         claimed = conf >= CONFIDENT
-        registered = claimed.mean() >= cfg.confidence.registered_above
-        why = "" if registered else unverified(claimed, repeats, ctx.textured, cfg.confidence.repeating_share)
-        if not why and cfg.confidence.bridge:  # the answer's flat gaps, where two models of them agree
-            conf = self.bridged(ctx, conf, best, cands, scores, repeats)
+        registered = claimed.mean() >= cfg.registered_above
+        why = "" if registered else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
+        if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
+            conf = self.bridged(ctx, conf, best, search.cands, scores, search.repeats)
             claimed = conf >= CONFIDENT
-            stages.append("bridge")
-        if why and network.H is not None:
+            search.stages.append("bridge")
+        if why and search.network.H is not None:
             # nothing verified: residuals fitted on images that carry no evidence only add noise, and the
             # homography of the network's own flow is the smoothest statement of its hypothesis
-            best = Candidate("network", "homography", homography_flow(network.H, h, w), plane=True)
+            best = Candidate("network", "homography", homography_flow(search.network.H, *ctx.shape), plane=True)
             scores[best.key] = ctx.score(best.key, best.flow)
         # a pair reported as not registered claims nothing: a few stray pixels passing the checks are not
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(best.flow, claimed if not why else np.zeros_like(claimed), not why, why)
-        return pred, RefineInfo(best.hypothesis, best.label, scores, conf, ctx.share, tuple(stages))
+        return pred, RefineInfo(best.hypothesis, best.label, scores, conf, ctx.share, tuple(search.stages))
 
     def select(self, cands: list[Candidate], scores: dict[str, float]) -> Candidate:
         """The winning candidate: the highest score (ties: the first tried), unless a homography alone
@@ -304,12 +328,12 @@ class GeometricRefiner:
             out += [found] if found is not None else []
         return out
 
-    def _reselect(
-        self, ctx: PairContext, cands: list[Candidate], scores: dict[str, float], repeats: np.ndarray | None
-    ) -> tuple[Candidate, np.ndarray]:
-        scores.update({c.key: ctx.score(c.key, c.flow) for c in cands if c.key not in scores})
-        best = self.select(cands, scores)
-        return best, self.confidence(ctx, cands, scores, best, repeats)
+    def _reselect(self, search: Search) -> None:
+        """Score the new candidates, select, and verify the winner."""
+        ctx, scores = search.ctx, search.scores
+        scores.update({c.key: ctx.score(c.key, c.flow) for c in search.cands if c.key not in scores})
+        search.best = self.select(search.cands, scores)
+        search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
 
     def _pool(self) -> ThreadPoolExecutor | None:
         """This process's pool of ``search.workers`` threads (None for one worker)."""
