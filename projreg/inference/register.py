@@ -25,12 +25,12 @@ class Registration:
     """One registered pair.
 
     ``flow``: float32 ``(H, W, 2)`` (module conventions); ``claimed``: bool ``(H, W)``, the pixels the
-    answer vouches for (``predict``'s EXR ``valid``); ``confidence``: float32 ``(H, W)`` in [0, 1]
-    (claimed where >= ``CONFIDENT``; None without the refinement); ``registered``: False when the pair
-    could not be registered at all, ``reason`` says why (its flow is then a placeholder and nothing is
-    claimed); ``camera_size``: the captured image's ``(H, W)``; ``timings``: milliseconds per stage
-    (``network``, ``refine``); ``step``: for tracking, how the frame was registered (``full``,
-    ``tracked`` or ``lost``), else ``""``.
+    answer vouches for (``predict``'s EXR ``valid``); ``confidence``: float32 ``(H, W)`` in [0, 1],
+    claimed where >= ``CONFIDENT`` (None without the refinement, and for a tracked frame);
+    ``registered``: False when the pair could not be registered at all, ``reason`` says why (its flow
+    is then a placeholder and nothing is claimed); ``camera_size``: the captured image's ``(H, W)``;
+    ``timings``: milliseconds per stage (``network``, ``refine``); ``step``: for tracking, how the frame
+    was registered (``full``, ``tracked`` or ``lost``), else ``""``.
     """
 
     flow: np.ndarray
