@@ -14,7 +14,15 @@ import cv2
 import numpy as np
 
 from ..geometry.homography import fit_step
-from ..geometry.images import divide_albedo, near, normalize_contrast, texture_weight, to_gray
+from ..geometry.images import (
+    LocalStats,
+    divide_albedo,
+    near,
+    normalize_contrast,
+    texture_weight,
+    to_gray,
+    weighted_mean,
+)
 from ..geometry.warp import compose, warp_back
 from .config import RefineConfig
 
@@ -25,28 +33,6 @@ def flow_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Per-pixel distance (px) between two flows, float32 ``(H, W)``."""
     d = a - b
     return np.hypot(d[..., 0], d[..., 1])
-
-
-class LocalStats:
-    """Gaussian-window mean and variance of a reference image, computed once, so that the local NCC of
-    each image compared with it (:meth:`ncc`) blurs three maps instead of five."""
-
-    def __init__(self, image: np.ndarray, sigma: float) -> None:
-        self.sigma = sigma
-        self.image = image.astype(np.float32)
-        self.mean = self._blur(self.image)
-        self.var = self._blur(self.image * self.image) - self.mean * self.mean
-
-    def _blur(self, img: np.ndarray) -> np.ndarray:
-        return cv2.GaussianBlur(img, (0, 0), self.sigma)
-
-    def ncc(self, other: np.ndarray) -> np.ndarray:
-        """:func:`~projreg.geometry.images.local_ncc` of the reference and ``other`` (aligned with it)."""
-        b = other.astype(np.float32)
-        mb = self._blur(b)
-        cov = self._blur(self.image * b) - self.mean * mb
-        var = np.maximum(self.var * (self._blur(b * b) - mb * mb), 1e-2)
-        return cov / np.sqrt(var)
 
 
 @dataclass
@@ -153,8 +139,7 @@ class PairContext:
 
     def score(self, key: str, flow: np.ndarray) -> float:
         """The selection score: the texture-weighted mean of :meth:`ncc`, in [-1, 1]."""
-        values, weight = self.ncc(key, flow), self.evidence
-        return float((values * weight).sum() / max(float(weight.sum()), 1e-6))
+        return weighted_mean(self.ncc(key, flow), self.evidence)
 
     def round_trip(self, dis: cv2.DISOpticalFlow, key: str, flow: np.ndarray) -> np.ndarray:
         """Forward-backward residual (px, ``(H, W)``) between the projected image and the captured one
