@@ -9,11 +9,12 @@ projected -> captured.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
+from ..geometry.align import align
 from ..geometry.frames import shrink
 from ..geometry.homography import SiftHomography, area_ratio, fit_affine, fit_homography, homography_flow
 from ..geometry.images import to_gray
@@ -38,12 +39,15 @@ class Start:
 class Candidate:
     """A flow that competes in the selection: refined from start ``hypothesis`` on view ``images``
     ("normalised", "plain", "albedo"), or, ``plane`` True, the homography alone (refitted from that
-    candidate, or SIFT's with ``images`` "homography")."""
+    candidate, or SIFT's with ``images`` "homography"); ``aligned``: by direct alignment instead of DIS;
+    ``realigned``: the winner re-aligned (:func:`realign`)."""
 
     hypothesis: str
     images: str
     flow: np.ndarray
     plane: bool = False
+    aligned: bool = False
+    realigned: bool = False
 
     @property
     def refitted(self) -> bool:
@@ -53,7 +57,9 @@ class Candidate:
     @property
     def label(self) -> str:
         """The images in reports: ``images``, with ``-homography`` for a refitted plane."""
-        return f"{self.images}-homography" if self.refitted else self.images
+        label = f"{self.images}-homography" if self.refitted else self.images
+        label = f"{label}-aligned" if self.aligned else label
+        return f"{label}-realigned" if self.realigned else label
 
     @property
     def key(self) -> str:
@@ -66,10 +72,11 @@ class RefineInfo:
     """What :meth:`~projreg.refine.refiner.GeometricRefiner.predict_info` chose: ``hypothesis``
     ("network", "identity", "sift", "grown", "none" for a textureless pair or "skipped"), ``images``
     (:attr:`Candidate.label`: "normalised", "plain", "albedo", "homography" for a homography unrefined, or
-    one of the first three with "-homography" for a refitted plane alone), the selection score
-    of every candidate tried (keyed :attr:`Candidate.key`, texture-weighted mean local NCC in [-1, 1]),
-    the per-pixel ``confidence`` (float32 ``(H, W)`` in [0, 1]), ``evidence`` (the textured share of the
-    frame) and ``stages``: the stages run, in order ("network", "more starts", "grown", "bridge")."""
+    one of the first three with "-homography" for a refitted plane alone; "-aligned" when aligned directly,
+    "-realigned" when re-aligned), the selection score of every candidate tried (keyed
+    :attr:`Candidate.key`, texture-weighted mean local NCC in [-1, 1]), the per-pixel ``confidence``
+    (float32 ``(H, W)`` in [0, 1]), ``evidence`` (the textured share of the frame) and ``stages``: the
+    stages run, in order ("network", "more starts", "grown", "realigned", "bridge")."""
 
     hypothesis: str
     images: str
@@ -156,6 +163,55 @@ def refine_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: 
         if plane_agrees(ctx, plane, flow):
             out.append(Candidate(start.name, view, plane, plane=True))
     return out
+
+
+def align_start(ctx: PairContext, start: Start, view: str) -> list[Candidate]:
+    """The direct alignment of one start on one view (:func:`aligned`), held within ``free_px`` of the
+    start's prior outside the support; the homography refitted to it competes alone where it stands for
+    it (:func:`plane_agrees`)."""
+    cfg, (h, w) = ctx.config, ctx.shape
+    sf, fit = cfg.surface, cfg.fit
+    flow = bound_outside(aligned(ctx, view, homography_flow(start.H, h, w)), start.prior, ctx.support, sf.free_px)
+    out = [Candidate(start.name, view, flow, aligned=True)]
+    found = fit_homography(flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
+    if found is not None:
+        plane = bound_outside(homography_flow(found[0], h, w), start.prior, ctx.support, sf.free_px)
+        if plane_agrees(ctx, plane, flow):
+            out.append(Candidate(start.name, view, plane, plane=True, aligned=True))
+    return out
+
+
+def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
+    """The selected candidate aligned again directly from its own homography (:func:`aligned`), or None
+    when that fit fails or the alignment moves the textured pixels farther than ``align.trust_px``
+    (at the ``plane_agree_share`` quantile) from it.
+
+    A DIS-refined candidate carries DIS's noise under its spline (the spline is fitted to a residual
+    measured patch by patch); the alignment measures the same surface model on every textured pixel at
+    once. Kept within ``trust_px`` of an answer the search verified, it cannot move it to another basin.
+    A homography that won alone is not re-aligned: a plane explained the images as well as any surface."""
+    cfg, (h, w) = ctx.config, ctx.shape
+    fit = cfg.fit
+    found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
+    if found is None:
+        return None
+    trust = cfg.align.trust_px
+    flow = bound_outside(aligned(ctx, "normalised", homography_flow(found[0], h, w)), best.flow, ctx.support, trust)
+    gap = flow_distance(flow, best.flow)[ctx.textured]
+    if not gap.size or float(np.percentile(gap, 100 * cfg.selection.plane_agree_share)) > trust:
+        return None
+    return replace(best, flow=flow, plane=False, realigned=True)
+
+
+def aligned(ctx: PairContext, view: str, start: np.ndarray) -> np.ndarray:
+    """``start`` plus the coarse spline aligned coarse to fine on ``view``, then the fine one at full
+    size (``align.detail``): :func:`~projreg.geometry.align.align`."""
+    al, sf = ctx.config.align, ctx.config.surface
+    levels = ctx.pyramid(view)
+    flow = align(levels, start, sf.grid, dict(zip(al.levels, al.steps, strict=True)), al.bend, al.ridge, al.max_step)
+    if al.detail:
+        flow = align(levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, al.ridge, al.max_step)
+    return flow
 
 
 def surface(ctx: PairContext, view: str, base: np.ndarray, residual: np.ndarray, prior: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""The geometric refinement's settings: :class:`RefineConfig`, in sections (images, fit, surface,
-search, selection, confidence), and the three qualities of :data:`QUALITIES` (``fast``, ``balanced``,
+"""The geometric refinement's settings: :class:`RefineConfig`, in sections (images, fit, align,
+surface, search, selection, confidence), and the three qualities of :data:`QUALITIES` (``fast``, ``balanced``,
 ``accurate``, the default) that ``predict --quality`` and ``bench --quality`` name.
 
 Every number the refinement uses is a field here, with one meaning each; a stage that can be left out
@@ -40,6 +40,26 @@ class FitConfig:
     fit_points: int = 12288  # about how many grid correspondences a fit uses
     max_area_ratio: float = 6.0  # a fit whose local area scale varies more over the frame is refused
     min_hull: float = 0.02  # a fit whose inliers' hull covers less of the frame is refused
+
+
+@dataclass(frozen=True)
+class AlignConfig:
+    """Direct photometric alignment of the surface model to the images (:mod:`~projreg.geometry.align`):
+    the re-alignment of the selected answer, and, ``direct`` on, the first stage's estimator."""
+
+    realign: bool = True  # align the selected answer again from its homography (DIS's noise left out) ...
+    trust_px: float = 1.0  # ... kept where it moves the textured pixels at most this far (selection.plane_agree_share)
+    direct: bool = False  # the first stage aligns the network's start directly, no DIS; the DIS search of
+    # every start and view follows only when it claims less than search.escalate_below of the texture
+    views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct
+    levels: tuple[int, ...] = (4, 2, 1)  # pyramid factors, coarsest first
+    steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level
+    max_step: float = 1.0  # the most one step moves a control value, in pixels of its level
+    bend: float = 0.01  # second-difference penalty of the coarse grid (surface.grid), relative
+    ridge: float = 1e-4  # pull of every control value towards 0, relative
+    detail: bool = True  # then align the fine grid (surface.detail_grid) at full size ...
+    detail_steps: int = 3  # ... with this many steps
+    detail_bend: float = 0.1  # ... and this second-difference penalty, relative
 
 
 @dataclass(frozen=True)
@@ -119,6 +139,7 @@ class RefineConfig:
 
     images: ImagesConfig = field(default_factory=ImagesConfig)
     fit: FitConfig = field(default_factory=FitConfig)
+    align: AlignConfig = field(default_factory=AlignConfig)
     surface: SurfaceConfig = field(default_factory=SurfaceConfig)
     search: SearchConfig = field(default_factory=SearchConfig)
     selection: SelectionConfig = field(default_factory=SelectionConfig)
@@ -131,6 +152,9 @@ class RefineConfig:
 
     def __post_init__(self) -> None:
         im, fit, sf, se = self.images, self.fit, self.surface, self.search
+        al = self.align
+        if len(al.levels) != len(al.steps) or not al.levels or min(al.levels) < 1 or al.levels[-1] != 1:
+            raise ProjregError(f"refine align.levels must end at 1, one per align.steps, got {al.levels}, {al.steps}")
         if min(sf.grid) < 4 or min(sf.detail_grid) < 4:
             raise ProjregError(f"refine grids need at least 4 x 4 control points, got {sf.grid}, {sf.detail_grid}")
         positive = {
@@ -140,6 +164,8 @@ class RefineConfig:
             "selection.ncc_sigma": self.selection.ncc_sigma,
             "images.contrast_sigma": im.contrast_sigma,
             "confidence.radius": self.confidence.radius,
+            "align.trust_px": al.trust_px,
+            "align.max_step": al.max_step,
         }
         for name, value in positive.items():
             if not value > 0:
@@ -173,27 +199,29 @@ class Quality:
     about: str
 
 
-# ``accurate`` (the default): every start on every view, the network at up to 1024 px. ``balanced``: the
-# network at 256 px (the refinement closes what the coarser flow leaves), SIFT's start found at 256 px,
-# and the identity and SIFT starts only where the network's answer leaves the texture unverified. ``fast``:
-# the network's start on normalised images alone, the pair refined at 256 px with the pixel parameters
-# halved, no detail level, periodicity test, albedo view or bridge. Their figures: docs/results.md.
+# ``accurate`` (the default): every start on every view, the network at up to 1024 px, the winner
+# re-aligned directly. ``balanced``: the network at 256 px (the refinement closes what the coarser flow
+# leaves), SIFT's start found at 256 px, and the identity and SIFT starts only where the network's answer
+# leaves the texture unverified. ``fast``: the network's start aligned directly to the normalised images
+# at 256 px (no DIS), the fit's pixel parameters halved, no detail level, periodicity test, albedo view or
+# bridge. Their figures: docs/results.md.
 ACCURATE = RefineConfig()
 BALANCED = ACCURATE.with_sections(search={"escalate_below": 0.9, "sift_side": 256})
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),
+    align=AlignConfig(direct=True, realign=False, detail=False),
     fit=FitConfig(ransac_px=1.0, refit_px=0.5, fit_points=3072),
     surface=SurfaceConfig(robust_px=0.5, free_px=8.0, detail=False),
-    search=SearchConfig(identity=False, sift=False),
+    search=SearchConfig(identity=False, sift=False, escalate_below=0.0),
     selection=SelectionConfig(ncc_sigma=3.5),
     confidence=ConfidenceConfig(periodic=False, bridge=False),
 )
 QUALITIES = {
     q.name: q
     for q in (
-        Quality("fast", 256, FAST, "the network at 256 px, one start on one view, refined at 256 px"),
+        Quality("fast", 256, FAST, "the network at 256 px, its start aligned to the images at 256 px"),
         Quality("balanced", 256, BALANCED, "the network at 256 px, more starts only where the evidence asks"),
-        Quality("accurate", 1024, ACCURATE, "the network at up to 1024 px, every start on every view"),
+        Quality("accurate", 1024, ACCURATE, "the network at up to 1024 px, every start on every view, re-aligned"),
     )
 }
 DEFAULT_QUALITY = "accurate"

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..geometry.align import Level, pyramid
 from ..geometry.homography import fit_step
 from ..geometry.images import (
     LocalStats,
@@ -56,6 +57,7 @@ class PairContext:
     support: np.ndarray
     step: int
     weights: dict[str, np.ndarray] = field(default_factory=dict)
+    pyramids: dict[str, dict[int, Level]] = field(default_factory=dict)
     memo: dict[str, np.ndarray] = field(default_factory=dict)
     _reference: LocalStats | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
@@ -103,6 +105,14 @@ class PairContext:
             gray = self.normalised[0] if view == "normalised" else self.plain[0]
             self.weights[view] = texture_weight(gray, floor, self.config.images.texture_sigma)
         return self.weights[view]
+
+    def pyramid(self, view: str) -> dict[int, Level]:
+        """``view``'s image pyramid for the direct alignment (``align.levels``), built once."""
+        with self._lock:
+            if view not in self.pyramids:
+                gray0, gray1 = self.views()[view] if view != "albedo" else self.plain
+                self.pyramids[view] = pyramid(gray0, gray1, self.evidence, self.config.align.levels)
+        return self.pyramids[view]
 
     def residual(self, dis: cv2.DISOpticalFlow, view: str, base: np.ndarray) -> np.ndarray:
         """DIS flow from the projected image to the captured one warped back by ``base``, on ``view``;

@@ -24,7 +24,9 @@ reads as the algorithm:
    the second stage's starts are refined and selected with the first's; otherwise they are not tried.
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
-8. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame; otherwise
+8. **Re-align**: the winner aligned to the images directly from its own homography
+   (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it.
+9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame; otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
 
 docs/model.md describes each stage, its parameters (:mod:`~projreg.refine.config`) and what it is for.
@@ -51,9 +53,11 @@ from .candidates import (
     Candidate,
     RefineInfo,
     Start,
+    align_start,
     grown_start,
     identity_start,
     network_start,
+    realign,
     refine_start,
     sift_plane,
     sift_start,
@@ -142,7 +146,10 @@ class GeometricRefiner:
     def _search(
         self, ctx: PairContext, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool
     ) -> Search:
-        """Propose, refine, score and select, verify, escalate, grow (module docstring, stages 2-7)."""
+        """Propose, refine, score and select, verify, escalate, grow, re-align (module docstring, stages 2-8).
+
+        With ``align.direct`` the first stage aligns its starts directly on ``align.views``; the
+        second adds the DIS-refined candidates of every start and view."""
         cfg, conf_cfg = self.config, self.config.confidence
         pending = self._submit(
             repeating,
@@ -156,19 +163,19 @@ class GeometricRefiner:
         first = [network] if network.H is not None else []
         if not usable:
             first.append(identity_start(ctx))
-        views = list(ctx.views())
-        first_views = [v for v in views if v in cfg.search.first_views]
+        views, direct = list(ctx.views()), cfg.align.direct
+        first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
         more = identity and (cfg.search.identity or cfg.search.sift)
-        one_stage = cfg.search.escalate_below >= 1 or not first_views
+        one_stage = not direct and (cfg.search.escalate_below >= 1 or not first_views)
         if one_stage:  # every start on every view, in one stage
             second = self._second_starts(ctx, projected, captured, usable) if more else []
             cands, stages = self._stage(ctx, first + second, views), ["network"] + (["more starts"] if more else [])
         else:
-            cands, stages = self._stage(ctx, first, first_views), ["network"]
+            cands, stages = self._stage(ctx, first, first_views, direct), ["network"]
         search = Search(ctx, network, cands, {}, stages)
         search.repeats = pending.result() if conf_cfg.periodic else None
         self._reselect(search)
-        rest = [v for v in views if v not in first_views]
+        rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
         if not one_stage and (more or rest) and claimed_share(search.conf, ctx) < cfg.search.escalate_below:
             second = self._second_starts(ctx, projected, captured, usable) if more else []
             search.cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
@@ -176,14 +183,20 @@ class GeometricRefiner:
             self._reselect(search)
         grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if cfg.search.grow else None
         if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
-            search.cands += self._stage(ctx, [grown], views)
+            search.cands += self._stage(ctx, [grown], first_views if direct else views, direct)
             search.stages.append("grown")
             self._reselect(search)
+        if cfg.align.realign and not search.best.plane and (again := realign(ctx, search.best)) is not None:
+            search.cands = [again if c is search.best else c for c in search.cands]
+            search.best = again
+            search.stages.append("realigned")
+            search.scores[again.key] = ctx.score(again.key, again.flow)
+            search.conf = self.confidence(ctx, search.cands, search.scores, again, search.repeats)
         return search
 
     def _verdict(self, search: Search) -> tuple[Prediction, RefineInfo]:
         """Registered or not, and why; the bridge for a registered answer; the network's homography for one
-        that is not (module docstring, stages 7-8)."""
+        that is not (module docstring, stages 7 and 9)."""
         ctx, cfg, scores = search.ctx, self.config.confidence, search.scores
         net = [c for c in search.cands if c.hypothesis == "network"]
         if (search.conf >= CONFIDENT).mean() < cfg.registered_above and net and search.best.hypothesis != "network":
@@ -297,13 +310,13 @@ class GeometricRefiner:
         candidates (at the pair's own size)."""
         return PairContext.build(projected, captured, self.config).score("flow", np.asarray(flow, np.float32))
 
-    def _stage(self, ctx: PairContext, starts: list[Start], views: list[str]) -> list[Candidate]:
+    def _stage(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list[Candidate]:
         """Every start refined on each of ``views`` (the albedo view from the network's and SIFT's starts only),
         side by side on the pool, in a fixed order: the refined candidates (views, then starts), then the
         planes in the same order, then SIFT's homography alone; each scored."""
         jobs = [(s, view) for view in views for s in starts if s.H is not None]
         jobs = [(s, view) for s, view in jobs if not (view == "albedo" and s.name == "identity")]
-        done = self._map(lambda job: self._refine_scored(ctx, *job), jobs)
+        done = self._map(lambda job: self._refine_scored(ctx, *job, direct), jobs)
         out = [c for group in done for c in group if not c.plane] + [c for group in done for c in group if c.plane]
         for s in starts:
             if s.name == "sift":
@@ -312,8 +325,8 @@ class GeometricRefiner:
                 out.append(plane)
         return out
 
-    def _refine_scored(self, ctx: PairContext, start: Start, view: str) -> list[Candidate]:
-        cands = refine_start(ctx, self._dis(), start, view)
+    def _refine_scored(self, ctx: PairContext, start: Start, view: str, direct: bool) -> list[Candidate]:
+        cands = align_start(ctx, start, view) if direct else refine_start(ctx, self._dis(), start, view)
         for c in cands:
             ctx.ncc(c.key, c.flow)  # the score's map, computed on this thread
         return cands

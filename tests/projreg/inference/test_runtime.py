@@ -90,7 +90,7 @@ def test_predict_folder_mode_in_batches_writes_what_one_by_one_writes(tiny_ckpt,
         np.testing.assert_allclose(two, one, atol=1e-4)
 
 
-def test_the_fast_path_is_the_small_network_then_one_refinement_candidate(tiny_ckpt, pairs):
+def test_the_fast_path_is_the_small_network_then_one_aligned_candidate(tiny_ckpt, pairs):
     img0, img1 = pairs[2]
     big0, big1 = (cv2.resize(i, (384, 256), interpolation=cv2.INTER_LINEAR) for i in (img0, img1))
     (method,) = model_methods(tiny_ckpt, "tiny", ModelRun(device=CPU, quality="fast"))
@@ -101,6 +101,8 @@ def test_the_fast_path_is_the_small_network_then_one_refinement_candidate(tiny_c
     flow = flows_resized(net, [(big0, big1)], fast.network_side)[0]  # the network at 170 x 256
     expected, info = GeometricRefiner(fast.refine).predict_info(big0, big1, flow)
     np.testing.assert_allclose(pred.flow, expected.flow, atol=1e-4)
-    refined = {key for key in info.scores if not key.endswith("-homography")}
-    assert refined <= {"network/normalised", "identity/normalised"} and len(refined) == 1
-    assert set(info.scores) - refined <= {f"{key}-homography" for key in refined}  # and its homography alone
+    refined = {key for key in info.scores if not key.endswith("-homography-aligned")}
+    starts = {"network/normalised-aligned", "identity/normalised-aligned"}
+    assert refined <= starts | {"grown/normalised-aligned"} and len(refined & starts) == 1  # one start (and grown)
+    planes = {key.replace("-aligned", "-homography-aligned") for key in refined}
+    assert set(info.scores) - refined <= planes  # and its homography alone

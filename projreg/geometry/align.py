@@ -1,0 +1,174 @@
+"""Direct photometric alignment: a flow ``base + spline`` whose B-spline control values minimise the
+robust difference between the projected image and the captured one warped back, by Gauss-Newton over an
+image pyramid.
+
+Each step linearises the warped image in the control values (the gradient is the mean of the projected
+image's and the warped image's, as in efficient second-order minimisation), weights the pixels by their
+texture and a Cauchy function of their residual (scale: the residuals' median absolute deviation), and
+solves the normal equations with a second-difference penalty on the control grid (a P-spline: where the
+images carry no texture the surface is bridged smoothly) and a small ridge. The tensor-product basis
+makes the normal equations separable: three image products and a few small matrix products per step.
+Coarse levels see displacements of several pixels; the finest closes the last tenth of a pixel.
+
+Convention: gray images float32 ``(H, W)`` on the projected grid (projected) and the captured grid
+(captured, any size); flows float32 ``(H, W, 2)``, forward, projected -> captured, pixels; control
+values ``(ky, kx, 2)`` in pixels of the finest level.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from .splines import bspline_basis, one_blas_thread
+from .warp import pixel_maps
+
+
+@dataclass(frozen=True)
+class Level:
+    """One pyramid level of a pair: the projected and captured images, the projected image's gradient and
+    the texture weight, at ``scale`` of the finest level."""
+
+    scale: float
+    projected: np.ndarray
+    captured: np.ndarray
+    gradient: tuple[np.ndarray, np.ndarray]
+    weight: np.ndarray
+
+
+def pyramid(
+    projected: np.ndarray, captured: np.ndarray, weight: np.ndarray, factors: tuple[int, ...]
+) -> dict[int, Level]:
+    """The levels of a pair at each of ``factors`` (1: the images themselves, 2: half size, ...), by factor.
+
+    ``projected``/``captured``: gray images (any dtype; float32 internally); ``weight``: the projected
+    image's texture weight in [0, 1]."""
+    out = {}
+    for f in factors:
+        p, c, wt = (_shrunk(a.astype(np.float32), f) for a in (projected, captured, weight))
+        out[f] = Level(1.0 / f, p, c, _gradient(p), wt)
+    return out
+
+
+def _shrunk(image: np.ndarray, factor: int) -> np.ndarray:
+    if factor == 1:
+        return image
+    h, w = image.shape[:2]
+    return cv2.resize(image, (max(1, w // factor), max(1, h // factor)), interpolation=cv2.INTER_AREA)
+
+
+def _gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Central differences (Sobel / 8: the slope in grey levels per pixel), x and y."""
+    return cv2.Sobel(image, cv2.CV_32F, 1, 0) / 8, cv2.Sobel(image, cv2.CV_32F, 0, 1) / 8
+
+
+@lru_cache(maxsize=16)
+def _basis(h: int, w: int, grid: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """``By`` ``(h, ky)``, ``Bx`` ``(w, kx)`` and their row-wise outer products ``(h, ky ky)``, ``(w, kx kx)``."""
+    kx, ky = grid
+    By, Bx = bspline_basis(h, ky), bspline_basis(w, kx)
+    byy = (By[:, :, None] * By[:, None, :]).reshape(h, ky * ky)
+    bxx = (Bx[:, :, None] * Bx[:, None, :]).reshape(w, kx * kx)
+    return By, Bx, byy, bxx
+
+
+@lru_cache(maxsize=8)
+def _penalty(grid: tuple[int, int]) -> np.ndarray:
+    """Second differences of the control grid along y and along x, ``D^T D`` ``(K, K)``."""
+    kx, ky = grid
+    dy, dx = np.diff(np.eye(ky), 2, axis=0), np.diff(np.eye(kx), 2, axis=0)
+    D = np.concatenate([np.kron(dy, np.eye(kx)), np.kron(np.eye(ky), dx)])
+    return D.T @ D
+
+
+def spline_field(control: np.ndarray, h: int, w: int) -> np.ndarray:
+    """The B-spline of ``control`` ``(ky, kx, 2)`` on an ``h x w`` grid, float32 ``(h, w, 2)``."""
+    ky, kx = control.shape[:2]
+    By, Bx = _basis(h, w, (kx, ky))[:2]
+    return np.stack([By @ control[..., i] @ Bx.T for i in range(2)], axis=-1).astype(np.float32)
+
+
+def align(
+    levels: dict[int, Level],
+    base: np.ndarray,
+    grid: tuple[int, int],
+    iterations: dict[int, int],
+    bend: float,
+    ridge: float,
+    max_step: float = 1.0,
+) -> np.ndarray:
+    """The flow ``base + spline`` aligning the pair of ``levels`` (:func:`pyramid`), coarse to fine.
+
+    Args:
+        levels: the pair's pyramid, by factor.
+        base: float32 ``(H, W, 2)`` start flow at the finest level (a homography's, or an earlier answer).
+        grid: the spline's control points ``(kx, ky)``.
+        iterations: Gauss-Newton steps at each factor, coarsest first (factors without steps are skipped).
+        bend: second-difference penalty, relative to the mean diagonal of the normal equations.
+        ridge: pull of every control value towards 0, relative likewise.
+        max_step: the most one step moves a control value, in pixels of its level (a step that would
+            move one farther is shortened): the linearisation holds about a pixel.
+
+    Returns:
+        float32 ``(H, W, 2)``: ``base`` plus the fitted spline.
+    """
+    kx, ky = grid
+    control = np.zeros((ky, kx, 2))
+    reg = bend * _penalty(grid) + ridge * np.eye(kx * ky)
+    for factor in sorted(iterations, reverse=True):
+        level = levels[factor]
+        h, w = level.projected.shape
+        start = base if factor == 1 else cv2.resize(base, (w, h), interpolation=cv2.INTER_AREA) * level.scale
+        for _ in range(iterations[factor]):
+            control = control + _step(level, start, control, grid, reg, max_step)
+    return base + spline_field(control, *base.shape[:2])
+
+
+def _step(
+    level: Level, start: np.ndarray, control: np.ndarray, grid: tuple[int, int], reg: np.ndarray, max_step: float
+) -> np.ndarray:
+    """One robust Gauss-Newton update of the control values (module docstring)."""
+    kx, ky = grid
+    k = kx * ky
+    h, w = level.projected.shape
+    By, Bx, byy, bxx = _basis(h, w, grid)
+    s = level.scale
+    flow = start + spline_field(control, h, w) * s
+    x, y = pixel_maps(h, w)
+    mx, my = x + flow[..., 0], y + flow[..., 1]
+    captured = level.captured
+    warped = cv2.remap(captured, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inside = (mx >= 0) & (my >= 0) & (mx <= captured.shape[1] - 1) & (my <= captured.shape[0] - 1)
+    r = warped - level.projected
+    gx, gy = _gradient(warped)
+    gx = (gx + level.gradient[0]) * (0.5 * s)  # d r / d control, control in finest-level pixels
+    gy = (gy + level.gradient[1]) * (0.5 * s)
+    weight = level.weight * inside
+    textured = weight > 0.5
+    scale = 1.4826 * float(np.median(np.abs(r[textured]))) + 1e-3 if textured.any() else 1.0
+    weight = weight / (1 + (r / scale) ** 2)
+    with one_blas_thread():
+        normal = np.empty((2 * k, 2 * k))
+        normal[:k, :k] = _normal_block(weight * gx * gx, byy, bxx, grid)
+        normal[:k, k:] = _normal_block(weight * gx * gy, byy, bxx, grid)
+        normal[k:, :k] = normal[:k, k:].T
+        normal[k:, k:] = _normal_block(weight * gy * gy, byy, bxx, grid)
+        rhs = np.concatenate([(By.T @ (weight * g * r) @ Bx).ravel() for g in (gx, gy)])
+    current = np.concatenate([control[..., 0].ravel(), control[..., 1].ravel()])
+    penalty = np.kron(np.eye(2), reg * (np.trace(normal) / (2 * k) + 1e-9))
+    delta = np.linalg.solve(normal + penalty, -rhs - penalty @ current)
+    reach = float(np.abs(delta).max()) * s  # the largest move of a control value, in this level's pixels
+    if reach > max_step:
+        delta *= max_step / reach
+    return np.stack([delta[:k].reshape(ky, kx), delta[k:].reshape(ky, kx)], axis=-1)
+
+
+def _normal_block(product: np.ndarray, byy: np.ndarray, bxx: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """``sum_p product(p) B_i(p) B_j(p)`` over the tensor-product basis, ``(K, K)``, rows and columns
+    ``(y index, x index)``."""
+    kx, ky = grid
+    block = (byy.T @ (product.astype(np.float64) @ bxx)).reshape(ky, ky, kx, kx)  # [i, k, j, l]
+    return block.transpose(0, 2, 1, 3).reshape(kx * ky, kx * ky)
