@@ -188,8 +188,7 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
 
     A DIS-refined candidate carries DIS's noise under its spline (the spline is fitted to a residual
     measured patch by patch); the alignment measures the same surface model on every textured pixel at
-    once. Kept within ``trust_px`` of an answer the search verified, it cannot move it to another basin.
-    A homography that won alone is not re-aligned: a plane explained the images as well as any surface."""
+    once. Kept within ``trust_px`` of an answer the search verified, it cannot move it to another basin."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
     found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)

@@ -186,12 +186,15 @@ class GeometricRefiner:
             search.cands += self._stage(ctx, [grown], first_views if direct else views, direct)
             search.stages.append("grown")
             self._reselect(search)
-        if cfg.align.realign and not search.best.plane and (again := realign(ctx, search.best)) is not None:
-            search.cands = [again if c is search.best else c for c in search.cands]
-            search.best = again
-            search.stages.append("realigned")
-            search.scores[again.key] = ctx.score(again.key, again.flow)
-            search.conf = self.confidence(ctx, search.cands, search.scores, again, search.repeats)
+        if cfg.align.realign and (again := realign(ctx, search.best)) is not None:
+            # a plane that won alone gives way only to a surface that explains the images better by the
+            # selection's plane margin: the same rule by which it won
+            score, best = ctx.score(again.key, again.flow), search.best
+            if not best.plane or score >= search.scores[best.key] + cfg.selection.plane_margin:
+                search.cands = [again if c is best else c for c in search.cands]
+                search.best, search.scores[again.key] = again, score
+                search.stages.append("realigned")
+                search.conf = self.confidence(ctx, search.cands, search.scores, again, search.repeats)
         return search
 
     def _verdict(self, search: Search) -> tuple[Prediction, RefineInfo]:
