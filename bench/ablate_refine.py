@@ -37,6 +37,8 @@ ROWS = {
     "- detail level": BASE.with_sections(surface={"detail": False}),
     "- growth": BASE.with_sections(search={"grow": False}),
     "- bridge": BASE.with_sections(confidence={"bridge": False}),
+    "- re-alignment": BASE.with_sections(align={"realign": False}),
+    "direct first stage, DIS below 60 %": BASE.with_sections(align={"direct": True}, search={"escalate_below": 0.6}),
     "balanced (second stage on evidence)": BALANCED.with_sections(search={"workers": 1}),
     "fast": FAST.with_sections(search={"workers": 1}),
 }
