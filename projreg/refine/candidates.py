@@ -188,7 +188,8 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
 
     A DIS-refined candidate carries DIS's noise under its spline (the spline is fitted to a residual
     measured patch by patch); the alignment measures the same surface model on every textured pixel at
-    once. Kept within ``trust_px`` of an answer the search verified, it cannot move it to another basin."""
+    once. Kept within ``trust_px`` of an answer the search verified, it cannot move it to another basin.
+    A homography that won alone gives way only to a re-alignment scoring ``plane_margin`` above it."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
     found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
@@ -199,7 +200,10 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     gap = flow_distance(flow, best.flow)[ctx.textured]
     if not gap.size or float(np.percentile(gap, 100 * cfg.selection.plane_agree_share)) > trust:
         return None
-    return replace(best, flow=flow, plane=False, realigned=True)
+    again = replace(best, flow=flow, plane=False, realigned=True)
+    if best.plane and ctx.score(again.key, flow) < ctx.score(best.key, best.flow) + cfg.selection.plane_margin:
+        return None  # a plane that won alone gives way only by the margin it won by
+    return again
 
 
 def aligned(ctx: PairContext, view: str, start: np.ndarray) -> np.ndarray:

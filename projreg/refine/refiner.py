@@ -187,14 +187,10 @@ class GeometricRefiner:
             search.stages.append("grown")
             self._reselect(search)
         if cfg.align.realign and (again := realign(ctx, search.best)) is not None:
-            # a plane that won alone gives way only to a surface that explains the images better by the
-            # selection's plane margin: the same rule by which it won
-            score, best = ctx.score(again.key, again.flow), search.best
-            if not best.plane or score >= search.scores[best.key] + cfg.selection.plane_margin:
-                search.cands = [again if c is best else c for c in search.cands]
-                search.best, search.scores[again.key] = again, score
-                search.stages.append("realigned")
-                search.conf = self.confidence(ctx, search.cands, search.scores, again, search.repeats)
+            search.cands = [again if c is search.best else c for c in search.cands]
+            search.best, search.scores[again.key] = again, ctx.score(again.key, again.flow)
+            search.stages.append("realigned")
+            search.conf = self.confidence(ctx, search.cands, search.scores, again, search.repeats)
         return search
 
     def _verdict(self, search: Search) -> tuple[Prediction, RefineInfo]:
