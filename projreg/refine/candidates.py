@@ -17,7 +17,7 @@ import numpy as np
 from ..geometry.align import align
 from ..geometry.frames import shrink
 from ..geometry.homography import SiftHomography, area_ratio, fit_affine, fit_homography, homography_flow
-from ..geometry.images import to_gray
+from ..geometry.images import ramp, to_gray
 from ..geometry.splines import fit_bspline, fit_detail
 from ..geometry.warp import compose
 from .context import PairContext, flow_distance
@@ -182,9 +182,10 @@ def align_start(ctx: PairContext, start: Start, view: str) -> list[Candidate]:
 
 
 def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
-    """The selected candidate aligned again directly from its own homography (:func:`aligned`), or None
-    when that fit fails or the alignment moves the textured pixels farther than ``align.trust_px``
-    (at the ``plane_agree_share`` quantile) from it.
+    """The selected candidate aligned again directly (:func:`aligned`) from its smooth surface (its
+    homography plus a P-spline of the rest on the fine grid, bend ``align.bend_start``), or None when the
+    fit fails or the alignment moves the textured pixels farther than ``align.trust_px`` (at the
+    ``plane_agree_share`` quantile) from it.
 
     A DIS-refined candidate carries DIS's noise under its spline (the spline is fitted to a residual
     measured patch by patch); the alignment measures the same surface model on every textured pixel at
@@ -195,8 +196,15 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is None:
         return None
-    trust = cfg.align.trust_px
-    flow = bound_outside(aligned(ctx, "normalised", homography_flow(found[0], h, w)), best.flow, ctx.support, trust)
+    trust, sf, al = cfg.align.trust_px, cfg.surface, cfg.align
+    plane = homography_flow(found[0], h, w)
+    smooth = fit_bspline(  # the winner's surface without DIS's noise finer than the fine grid
+        best.flow - plane, ctx.evidence, sf.detail_grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations, al.bend_start
+    )
+    flow = aligned(ctx, "normalised", plane + smooth)
+    knot = 0.5 * max(h / (sf.detail_grid[1] - 3), w / (sf.detail_grid[0] - 3))  # half a fine knot spacing, px
+    near_data = ramp(cv2.GaussianBlur(ctx.evidence, (0, 0), knot), *sf.detail_fade)  # as the detail level fades
+    flow = best.flow + near_data[..., None] * (flow - best.flow)  # no change where the images carry no texture
     gap = flow_distance(flow, best.flow)[ctx.textured]
     if not gap.size or float(np.percentile(gap, 100 * cfg.selection.plane_agree_share)) > trust:
         return None

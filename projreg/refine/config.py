@@ -49,6 +49,7 @@ class AlignConfig:
 
     realign: bool = True  # align the selected answer again from its homography (DIS's noise left out) ...
     trust_px: float = 1.0  # ... kept where it moves the textured pixels at most this far (selection.plane_agree_share)
+    bend_start: float = 0.3  # ... starting from its homography + a P-spline of the rest with this bend (fine grid)
     direct: bool = False  # the first stage aligns the network's start directly, no DIS; the DIS search of
     # every start and view follows only when it claims less than search.escalate_below of the texture
     views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct

@@ -24,7 +24,7 @@ reads as the algorithm:
    the second stage's starts are refined and selected with the first's; otherwise they are not tried.
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
-8. **Re-align**: the winner aligned to the images directly from its own homography
+8. **Re-align**: the winner aligned to the images directly from its own smooth surface
    (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it.
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame; otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
