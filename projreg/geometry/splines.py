@@ -132,6 +132,15 @@ class SplineDesign:
         return np.stack([self.By @ c[..., i] @ self.Bx.T for i in range(2)], axis=-1).astype(np.float32)
 
 
+def near_data_ramp(weight: np.ndarray, grid: tuple[int, int], fade: tuple[float, float]) -> np.ndarray:
+    """How much data a fine spline on ``grid`` has near each pixel, float32 ``(H, W)`` in [0, 1]: a ramp
+    over ``fade`` of ``weight``'s density within about half a knot spacing (where a spline beyond its
+    data would only extrapolate its slopes)."""
+    h, w = weight.shape[:2]
+    sigma = 0.5 * max(h / (grid[1] - 3), w / (grid[0] - 3))  # half a knot spacing, px
+    return ramp(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma), *fade)
+
+
 def fit_detail(
     remainder: np.ndarray,
     weight: np.ndarray,
@@ -181,8 +190,7 @@ def fit_detail(
         best = min(losses, key=losses.get)
         if best is None or losses[best] > (1 - gain) * losses[None]:
             return np.zeros_like(remainder, dtype=np.float32), None
-    sigma = 0.5 * max(h / (grid[1] - 3), w / (grid[0] - 3))  # half a knot spacing, px
-    near_data = ramp(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma), *fade)
+    near_data = near_data_ramp(weight, grid, fade)
     with one_blas_thread():
         detail = design.evaluate(design.solve(f, w0, robust, ridge, iterations, best))
     return detail * near_data[..., None], best

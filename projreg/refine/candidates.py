@@ -17,8 +17,8 @@ import numpy as np
 from ..geometry.align import align
 from ..geometry.frames import shrink
 from ..geometry.homography import SiftHomography, area_ratio, fit_affine, fit_homography, homography_flow
-from ..geometry.images import ramp, to_gray
-from ..geometry.splines import fit_bspline, fit_detail
+from ..geometry.images import to_gray
+from ..geometry.splines import fit_bspline, fit_detail, near_data_ramp
 from ..geometry.warp import compose
 from .context import PairContext, flow_distance
 from .evidence import bound_outside
@@ -202,8 +202,7 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
         best.flow - plane, ctx.evidence, sf.detail_grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations, al.bend_start
     )
     flow = aligned(ctx, "normalised", plane + smooth)
-    knot = 0.5 * max(h / (sf.detail_grid[1] - 3), w / (sf.detail_grid[0] - 3))  # half a fine knot spacing, px
-    near_data = ramp(cv2.GaussianBlur(ctx.evidence, (0, 0), knot), *sf.detail_fade)  # as the detail level fades
+    near_data = near_data_ramp(ctx.evidence, sf.detail_grid, sf.detail_fade)  # as the detail level fades
     flow = best.flow + near_data[..., None] * (flow - best.flow)  # no change where the images carry no texture
     gap = flow_distance(flow, best.flow)[ctx.textured]
     if not gap.size or float(np.percentile(gap, 100 * cfg.selection.plane_agree_share)) > trust:
