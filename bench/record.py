@@ -251,7 +251,7 @@ SETS = (
             Run(
                 "latency.json",
                 _bench(f"{_B}/latency", "latency.json", f"--baselines {BASELINES} --refine both --limit 32"),
-                "--quality accurate (the default)",
+                "--quality balanced (the default)",
             ),
             *(
                 Run(
@@ -263,7 +263,7 @@ SETS = (
                     ),
                     f"--quality {q}",
                 )
-                for q in ("balanced", "fast")
+                for q in ("accurate", "fast")
             ),
         ),
         "dis-medium",

@@ -40,8 +40,8 @@ class Registrar:
     Args:
         model: None or ``"reference"`` (the shipped model), a ``projreg train`` checkpoint, or a graph
             of ``projreg export --onnx`` (with ``backend="onnxruntime"``).
-        quality: ``fast``, ``balanced`` or ``accurate`` (the default;
-            :data:`projreg.refine.config.QUALITIES`): where the network runs and how far the refinement
+        quality: ``fast``, ``balanced`` (the default) or ``accurate``
+            (:data:`projreg.refine.config.QUALITIES`): where the network runs and how far the refinement
             searches.
         device, precision, backend: where and how the network runs (``cpu``/``cuda``/``cuda:N``,
             ``fp32``/``bf16``/``fp16``, ``torch``/``onnxruntime``), as ``predict``'s options.
@@ -68,7 +68,7 @@ class Registrar:
         if max_side < 16:
             raise ProjregError(f"--max-side must be >= 16, got {max_side}")
         self.quality = setting.name
-        self.max_side = min(max_side, setting.network_side)
+        self.max_side, self.finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
         self.network = open_network(model, backend=backend, device=device, precision=precision)
         self.refiner = GeometricRefiner(setting.refine) if refine else None
 
@@ -79,7 +79,7 @@ class Registrar:
     def register_batch(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]], batch_size: int = 1) -> list[Registration]:
         """The registrations of several pairs, in order; the network runs on ``batch_size`` pairs of one
         size per call."""
-        return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size)
+        return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size, self.finer_side)
 
     def track(self, frames: Iterable[tuple[np.ndarray, np.ndarray]]) -> Iterator[Registration]:
         """The registrations of a sequence's frames, in order: each frame refined from the previous one's

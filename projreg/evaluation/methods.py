@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from ..errors import ProjregError
-from ..inference.runtime import flows_resized, open_network
+from ..inference.runtime import finer_flow, flows_resized, open_network
 from ..inference.track import FlowTracker, Tracker
 from ..model.checkpoint import reference_checkpoint, resolve_checkpoint
 from ..prediction import Prediction
@@ -81,7 +81,7 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
     net = open_network(path, backend=run.backend, device=run.device, precision=run.precision)
     name = (name or Path(path).stem) + ("" if setting.name == DEFAULT_QUALITY else f"-{setting.name}")
     refiner = GeometricRefiner(setting.refine)
-    max_side = setting.network_side
+    max_side, finer_side = setting.network_side, setting.finer_side(setting.network_side)
     batched = BatchedFlows(net, max_side, batch_size) if batch_size > 1 else None
 
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
@@ -90,7 +90,7 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
         return flows_resized(net, [(img0, img1)], max_side)[0]
 
     def refined(img0: np.ndarray, img1: np.ndarray) -> Prediction:
-        return refiner.predict(img0, img1, raw(img0, img1))
+        return refiner.predict_info(img0, img1, raw(img0, img1), finer=finer_flow(net, img0, img1, finer_side))[0]
 
     prefetch = None if batched is None else batched.prefetch
     if refine == "off":

@@ -18,7 +18,7 @@ from ..errors import ProjregError
 from .closedloop import sheet_header
 from .metrics import BUCKETS, THRESHOLDS
 
-GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS))
+GATED = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS), "epe_claimed")  # epe_claimed: on the pixels claimed
 
 
 TABLE_METRICS = (("EPE", "epe"), *((b, b) for b in BUCKETS))

@@ -16,6 +16,11 @@ def to_gray(image: np.ndarray, equalize: bool = False) -> np.ndarray:
     return cv2.equalizeHist(gray) if equalize else gray
 
 
+def gaussian(image: np.ndarray, sigma: float) -> np.ndarray:
+    """``image`` blurred by a Gaussian of ``sigma`` px (OpenCV's kernel: 4 sigma each side for float images)."""
+    return cv2.GaussianBlur(image, (0, 0), sigma)
+
+
 def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
     """Local contrast normalisation: ``(g - mean) / std`` over a Gaussian window, as uint8 ``128 + 40 z``.
 
@@ -25,8 +30,8 @@ def normalize_contrast(gray: np.ndarray, sigma: float) -> np.ndarray:
     if sigma == 0:
         return gray
     g = gray.astype(np.float32)
-    mean = cv2.GaussianBlur(g, (0, 0), sigma)
-    var = cv2.GaussianBlur(g * g, (0, 0), sigma) - mean * mean
+    mean = gaussian(g, sigma)
+    var = gaussian(g * g, sigma) - mean * mean
     z = (g - mean) / np.sqrt(np.maximum(var, 4.0))
     return np.clip(128 + 40 * z, 0, 255).astype(np.uint8)
 
@@ -62,7 +67,7 @@ def texture_weight(gray: np.ndarray, floor: float = 0.0, sigma: float = 3.0) -> 
     pixel (a Sobel derivative is 8 times the slope).
     """
     g = gray.astype(np.float32)
-    energy = cv2.GaussianBlur(cv2.Sobel(g, cv2.CV_32F, 1, 0) ** 2 + cv2.Sobel(g, cv2.CV_32F, 0, 1) ** 2, (0, 0), sigma)
+    energy = gaussian(cv2.Sobel(g, cv2.CV_32F, 1, 0) ** 2 + cv2.Sobel(g, cv2.CV_32F, 0, 1) ** 2, sigma)
     return np.minimum(energy / (max(float(np.median(energy)), floor) + 1e-3), 1.0)
 
 
@@ -77,7 +82,7 @@ class LocalStats:
         self.var = self._blur(self.image * self.image) - self.mean * self.mean
 
     def _blur(self, img: np.ndarray) -> np.ndarray:
-        return cv2.GaussianBlur(img, (0, 0), self.sigma)
+        return gaussian(img, self.sigma)
 
     def ncc(self, other: np.ndarray) -> np.ndarray:
         """:func:`local_ncc` of the reference and ``other`` (aligned with it)."""

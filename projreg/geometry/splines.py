@@ -8,11 +8,10 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-import cv2
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from .images import ramp
+from .images import gaussian, ramp
 
 _BLAS = ThreadpoolController()
 
@@ -138,7 +137,7 @@ def near_data_ramp(weight: np.ndarray, grid: tuple[int, int], fade: tuple[float,
     data would only extrapolate its slopes)."""
     h, w = weight.shape[:2]
     sigma = 0.5 * max(h / (grid[1] - 3), w / (grid[0] - 3))  # half a knot spacing, px
-    return ramp(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma), *fade)
+    return ramp(gaussian(weight.astype(np.float32), sigma), *fade)
 
 
 def fit_detail(

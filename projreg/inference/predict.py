@@ -40,7 +40,7 @@ from ..refine.config import quality as resolve_quality
 from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
 from .register import register_pairs
-from .runtime import OnnxNetwork, TorchNetwork, flows_resized, open_network
+from .runtime import OnnxNetwork, TorchNetwork, finer_flow, flows_resized, open_network
 from .track import Tracker
 
 
@@ -159,7 +159,7 @@ def predict(
         device, precision, backend: where and how the network runs (:func:`projreg.inference.runtime.open_network`);
             device None: CUDA when available, else the CPU.
         batch_size: pairs per network call (folder mode; pairs of one size are batched).
-        quality: ``fast``, ``balanced`` or ``accurate`` (the default; :data:`projreg.refine.config.QUALITIES`):
+        quality: ``fast``, ``balanced`` (the default) or ``accurate`` (:data:`projreg.refine.config.QUALITIES`):
             the network's side and how the refinement searches.
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
@@ -195,15 +195,15 @@ def predict(
         + ([("--model", Path(weights))] if weights is not None else []),
     )
     net = open_network(weights, backend=backend, device=device, precision=precision)
-    max_side = min(max_side, setting.network_side)
+    max_side, finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
     refiner = GeometricRefiner(setting.refine) if refine else None
     if track:
-        return _track(jobs, net, refiner, max_side, progress, max_flow)
+        return _track(jobs, net, refiner, (max_side, finer_side), progress, max_flow)
     results = []
     for start in range(0, len(jobs), batch_size):
         chunk = jobs[start : start + batch_size]
         pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
-        for job, reg in zip(chunk, register_pairs(net, refiner, pairs, max_side, batch_size), strict=True):
+        for job, reg in zip(chunk, register_pairs(net, refiner, pairs, max_side, batch_size, finer_side), strict=True):
             pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason)
             results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size))
             if progress:
@@ -215,14 +215,16 @@ def _track(
     jobs: list[Job],
     net: TorchNetwork | OnnxNetwork,
     refiner: GeometricRefiner,
-    max_side: int,
+    sides: tuple[int, int | None],
     progress: Callable[[int, int], None] | None,
     max_flow: float | None,
 ) -> list[Predicted]:
-    """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`)."""
+    """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`); the
+    network at ``sides`` (first, on escalation)."""
 
     def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
-        return refiner.predict(img0, img1, flows_resized(net, [(img0, img1)], max_side)[0])
+        finer = finer_flow(net, img0, img1, sides[1])
+        return refiner.predict_info(img0, img1, flows_resized(net, [(img0, img1)], sides[0])[0], finer=finer)[0]
 
     _require_one_size(jobs)
     tracker = Tracker(register, refiner)

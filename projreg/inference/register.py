@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import ProjregError
 from ..geometry.frames import flow_to_captured, frame_scale, resize_to
 from ..refine.refiner import GeometricRefiner
-from .runtime import Network, flows_resized
+from .runtime import Network, finer_flow, flows_resized
 
 
 @dataclass(frozen=True)
@@ -49,10 +49,12 @@ def register_pairs(
     pairs: Sequence[tuple[np.ndarray, np.ndarray]],
     max_side: int,
     batch_size: int = 1,
+    finer_side: int | None = None,
 ) -> list[Registration]:
     """Each pair registered: the network on the pair (the captured image resized to the projected one,
     the pair shrunk to ``max_side``), ``batch_size`` pairs of one size per call, then the refinement
-    (None: the network alone, every pixel claimed); flows in each camera's own pixels."""
+    (None: the network alone, every pixel claimed), which may ask for the network's flow again at up to
+    ``finer_side`` (:func:`~projreg.inference.runtime.finer_flow`); flows in each camera's own pixels."""
     same = [(check_image("projected", a), resize_to(check_image("captured", b), a.shape)) for a, b in pairs]
     t0 = time.perf_counter()
     flows = flows_resized(net, same, max_side, batch_size)
@@ -68,7 +70,7 @@ def register_pairs(
             )
             continue
         t0 = time.perf_counter()
-        pred, info = refiner.predict_info(a, b, flow)
+        pred, info = refiner.predict_info(a, b, flow, finer=finer_flow(net, a, b, finer_side))
         timings = {"network": network_ms, "refine": 1000 * (time.perf_counter() - t0)}
         flow = flow_to_captured(pred.flow, scale)
         out.append(Registration(flow, pred.claimed, info.confidence, pred.registered, pred.reason, camera, timings))

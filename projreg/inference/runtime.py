@@ -193,6 +193,14 @@ def open_network(
     return OnnxNetwork(Path(model), dev)
 
 
+def finer_flow(
+    net: Network, projected: np.ndarray, captured: np.ndarray, side: int | None
+) -> Callable[[], np.ndarray] | None:
+    """The network's flow for one pair with the captured image at the projected one's size, shrunk to
+    ``side`` at most, as a call the refinement makes only when its first stage escalates (None: no ``side``)."""
+    return None if side is None else (lambda: flows_resized(net, [(projected, captured)], side)[0])
+
+
 def checked_flow(net: Network, out: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     """A network's output ``(N, H, W, 2)`` for inputs of ``shape`` ``(N, H, W)``, refused when it is not
     one (a foreign graph) or not finite (a broken graph or checkpoint, or an overflow in fp16): a flow

@@ -40,7 +40,8 @@ class Candidate:
     """A flow that competes in the selection: refined from start ``hypothesis`` on view ``images``
     ("normalised", "plain", "albedo"), or, ``plane`` True, the homography alone (refitted from that
     candidate, or SIFT's with ``images`` "homography"); ``aligned``: by direct alignment instead of DIS;
-    ``realigned``: the winner re-aligned (:func:`realign`)."""
+    ``polished``: an alignment polished by DIS (:func:`align_start`); ``realigned``: the winner re-aligned
+    (:func:`realign`)."""
 
     hypothesis: str
     images: str
@@ -48,6 +49,7 @@ class Candidate:
     plane: bool = False
     aligned: bool = False
     realigned: bool = False
+    polished: bool = False
 
     @property
     def refitted(self) -> bool:
@@ -59,6 +61,7 @@ class Candidate:
         """The images in reports: ``images``, with ``-homography`` for a refitted plane."""
         label = f"{self.images}-homography" if self.refitted else self.images
         label = f"{label}-aligned" if self.aligned else label
+        label = f"{label}-polished" if self.polished else label
         return f"{label}-realigned" if self.realigned else label
 
     @property
@@ -97,6 +100,14 @@ def network_start(ctx: PairContext, flow: np.ndarray) -> tuple[Start, bool]:
     usable = found is not None and area_ratio(found[0], h, w) <= fit.max_area_ratio
     found = found or fit_affine(flow, ctx.step, fit.ransac_px, fit.min_hull)
     return Start("network", None if found is None else found[0], flow), usable
+
+
+def network_starts(ctx: PairContext, flow: np.ndarray) -> tuple[Start, list[Start], bool]:
+    """The network's start (:func:`network_start`), the first stage's starts (it, when it has a
+    homography, and the identity when that is not usable) and whether it is."""
+    network, usable = network_start(ctx, flow)
+    first = [network] if network.H is not None else []
+    return network, first + ([] if usable else [identity_start(ctx)]), usable
 
 
 def identity_start(ctx: PairContext) -> Start:
@@ -165,14 +176,21 @@ def refine_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: 
     return out
 
 
-def align_start(ctx: PairContext, start: Start, view: str) -> list[Candidate]:
+def align_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: str) -> list[Candidate]:
     """The direct alignment of one start on one view (:func:`aligned`), held within ``free_px`` of the
-    start's prior outside the support; the homography refitted to it competes alone where it stands for
-    it (:func:`plane_agrees`)."""
+    start's prior outside the support, and, ``align.polish`` on, the same polished by the surface model
+    of DIS's residual on it (where the spline did not converge, e.g. a bend finer than its coarse grid,
+    DIS measures what is left): on its own view, and the plain images' alignment also on the albedo view
+    (the same images with the wall's reflectance divided out) when ``images.albedo`` is on. The
+    homography refitted to the alignment competes alone where it stands for it (:func:`plane_agrees`)."""
     cfg, (h, w) = ctx.config, ctx.shape
     sf, fit = cfg.surface, cfg.fit
     flow = bound_outside(aligned(ctx, view, homography_flow(start.H, h, w)), start.prior, ctx.support, sf.free_px)
     out = [Candidate(start.name, view, flow, aligned=True)]
+    for on in (view, "albedo") if view == "plain" and cfg.images.albedo else (view,):
+        if cfg.align.polish:
+            polished = surface(ctx, on, flow, ctx.residual(dis, on, flow), start.prior)
+            out.append(Candidate(start.name, on, polished, aligned=True, polished=True))
     found = fit_homography(flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is not None:
         plane = bound_outside(homography_flow(found[0], h, w), start.prior, ctx.support, sf.free_px)

@@ -52,7 +52,8 @@ class AlignConfig:
     bend_start: float = 0.3  # ... starting from its homography + a P-spline of the rest with this bend (fine grid)
     direct: bool = False  # the first stage aligns the network's start directly, no DIS; the DIS search of
     # every start and view follows only when it claims less than search.escalate_below of the texture
-    views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct
+    views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct ...
+    polish: bool = True  # ... each alignment also polished by the surface model of DIS's residual on it
     levels: tuple[int, ...] = (4, 2, 1)  # pyramid factors, coarsest first
     steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level
     max_step: float = 1.0  # the most one step moves a control value, in pixels of its level
@@ -192,25 +193,36 @@ class Quality:
     """One setting of the quality dial: where the network runs and how the refinement searches.
 
     ``network_side``: the longer side the network sees at most (the pair is shrunk for it and its flow
-    brought back); ``refine``: the refinement's configuration."""
+    brought back); ``refine``: the refinement's configuration; ``escalate_side``: where the refinement's
+    first stage leaves the frame unverified, the network runs again at up to this side and the second
+    stage starts from that flow (None: the first flow serves)."""
 
     name: str
     network_side: int
     refine: RefineConfig
     about: str
+    escalate_side: int | None = None
+
+    def finer_side(self, max_side: int) -> int | None:
+        """The escalation's network side under a user's ``--max-side``: None when it would see no more."""
+        side = None if self.escalate_side is None else min(self.escalate_side, max_side)
+        return side if side is not None and side > min(self.network_side, max_side) else None
 
 
-# ``accurate`` (the default): every start on every view, the network at up to 1024 px, the winner
-# re-aligned directly. ``balanced``: the network at 256 px (the refinement closes what the coarser flow
-# leaves), SIFT's start found at 256 px, and the identity and SIFT starts only where the network's answer
-# leaves the texture unverified. ``fast``: the network's start aligned directly to the normalised images
+# ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and
+# the plain images and polished by DIS (the plain alignment also on the albedo view); where that leaves
+# more than 15 % of the visible texture unverified, the network again at up to 1024 px and ``accurate``'s
+# search from it. ``accurate``: every start on every view, the network at up to 1024 px, the winner
+# re-aligned directly. ``fast``: the network's start aligned directly to the normalised images
 # at 256 px (no DIS), the fit's pixel parameters halved, no detail level, periodicity test, albedo view or
 # bridge. Their figures: docs/results.md.
 ACCURATE = RefineConfig()
-BALANCED = ACCURATE.with_sections(search={"escalate_below": 0.9, "sift_side": 256})
+BALANCED = ACCURATE.with_sections(
+    align={"direct": True, "views": ("normalised", "plain")}, search={"escalate_below": 0.85}
+)
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),
-    align=AlignConfig(direct=True, realign=False, detail=False),
+    align=AlignConfig(direct=True, realign=False, detail=False, polish=False),
     fit=FitConfig(ransac_px=1.0, refit_px=0.5, fit_points=3072),
     surface=SurfaceConfig(robust_px=0.5, free_px=8.0, detail=False),
     search=SearchConfig(identity=False, sift=False, escalate_below=0.0),
@@ -221,11 +233,17 @@ QUALITIES = {
     q.name: q
     for q in (
         Quality("fast", 256, FAST, "the network at 256 px, its start aligned to the images at 256 px"),
-        Quality("balanced", 256, BALANCED, "the network at 256 px, more starts only where the evidence asks"),
+        Quality(
+            "balanced",
+            256,
+            BALANCED,
+            "the network at 256 px aligned directly; where that leaves the frame unverified, accurate's search",
+            escalate_side=1024,
+        ),
         Quality("accurate", 1024, ACCURATE, "the network at up to 1024 px, every start on every view, re-aligned"),
     )
 }
-DEFAULT_QUALITY = "accurate"
+DEFAULT_QUALITY = "balanced"
 
 
 def quality(name: str) -> Quality:

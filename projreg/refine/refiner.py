@@ -15,16 +15,21 @@ reads as the algorithm:
    surface model of what remains (B-spline, and a cross-validated finer P-spline); the refitted
    homography alone competes where it stands for its candidate. A stage's candidates run side by side
    on ``search.workers`` threads.
-4. **Score and select**: texture-weighted mean local NCC of the projected image and the captured image
-   warped back; the best wins, unless a homography alone scores within ``plane_margin`` of it.
+4. **Score and select** (:mod:`~projreg.refine.selection`): texture-weighted mean local NCC of the
+   projected image and the captured image warped back; the best wins, unless a homography alone scores
+   within ``plane_margin`` of it.
 5. **Verify** (:mod:`~projreg.refine.confidence`): per-pixel checks (local NCC, forward-backward
    residual, rivals that explain the images as well), spread over the texture's neighbourhood; pixels
    where the projected image repeats itself are never claimed.
-6. **Escalate**: when the network's answer claims less than ``escalate_below`` of the textured frame,
-   the second stage's starts are refined and selected with the first's; otherwise they are not tried.
+6. **Escalate**: when the network's answer claims less than ``escalate_below`` of the textured pixels
+   it keeps in the frame, the second stage's starts are refined and selected with the first's;
+   otherwise they are not tried. With ``align.direct`` (``balanced``, the default) the first stage aligns
+   the network's start directly and polishes it with DIS (:func:`~projreg.refine.candidates.align_start`);
+   an escalation drops those candidates, and may restart from the network's flow at a finer resolution
+   (``finer``) with DIS on every view.
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
-8. **Re-align**: the winner aligned to the images directly from its own smooth surface
+8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface
    (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it.
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame; otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
@@ -39,6 +44,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -56,7 +62,7 @@ from .candidates import (
     align_start,
     grown_start,
     identity_start,
-    network_start,
+    network_starts,
     realign,
     refine_start,
     sift_plane,
@@ -66,6 +72,7 @@ from .confidence import gap_confidence, pixel_confidence
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, flow_distance
 from .evidence import repeating, unverified
+from .selection import ambiguity, select
 
 
 @dataclass
@@ -104,7 +111,12 @@ class GeometricRefiner:
         return self.predict_info(projected, captured, flow)[0]
 
     def predict_info(
-        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool = True
+        self,
+        projected: np.ndarray,
+        captured: np.ndarray,
+        flow: np.ndarray,
+        identity: bool = True,
+        finer: Callable[[], np.ndarray] | None = None,
     ) -> tuple[Prediction, RefineInfo]:
         """Refine one pair: flow, per-pixel confidence, registered or not, and what was chosen.
 
@@ -114,6 +126,8 @@ class GeometricRefiner:
                 frame's: :mod:`projreg.inference.track`).
             identity: allow the second stage's starts (the identity and SIFT; tracking leaves them out
                 while ``flow`` has a homography fit); the config's ``search`` flags leave them out always.
+            finer: the network's flow for the pair at a finer resolution, float ``(H, W, 2)``, called only
+                when the first stage escalates: the second stage starts from it instead of ``flow``.
 
         Returns:
             The :class:`~projreg.prediction.Prediction` (float32 ``(H, W, 2)`` forward flow, the pixels
@@ -132,7 +146,7 @@ class GeometricRefiner:
         flow = np.asarray(flow, np.float32)
         side = self.config.images.max_side
         if side is not None and max(h, w) > side:
-            return self._predict_shrunk(projected, captured, flow, identity)
+            return self._predict_shrunk(projected, captured, flow, identity, finer)
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
@@ -140,11 +154,17 @@ class GeometricRefiner:
         if ctx.share < self.config.images.textureless_below:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
             return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, ctx.share)
-        search = self._search(ctx, projected, captured, flow, identity)
+        search = self._search(ctx, projected, captured, flow, identity, finer)
         return self._verdict(search)
 
     def _search(
-        self, ctx: PairContext, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool
+        self,
+        ctx: PairContext,
+        projected: np.ndarray,
+        captured: np.ndarray,
+        flow: np.ndarray,
+        identity: bool,
+        finer: Callable[[], np.ndarray] | None,
     ) -> Search:
         """Propose, refine, score and select, verify, escalate, grow, re-align (module docstring, stages 2-8).
 
@@ -159,10 +179,7 @@ class GeometricRefiner:
             conf_cfg.periodic_tiles,
             conf_cfg.periodic_lobe,
         )
-        network, usable = network_start(ctx, flow)
-        first = [network] if network.H is not None else []
-        if not usable:
-            first.append(identity_start(ctx))
+        network, first, usable = network_starts(ctx, flow)
         views, direct = list(ctx.views()), cfg.align.direct
         first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
         more = identity and (cfg.search.identity or cfg.search.sift)
@@ -176,22 +193,35 @@ class GeometricRefiner:
         search.repeats = pending.result() if conf_cfg.periodic else None
         self._reselect(search)
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
-        if not one_stage and (more or rest) and claimed_share(search.conf, ctx) < cfg.search.escalate_below:
+        claimed = ctx.claimed_share(search.conf, search.best.flow)
+        if not one_stage and (more or rest) and claimed < cfg.search.escalate_below:
+            if finer is not None:  # the network's finer flow: a better start for the search, on every view
+                search.network, first, usable = network_starts(ctx, resize_flow(finer(), (*ctx.shape, 2)))
+                rest = views
             second = self._second_starts(ctx, projected, captured, usable) if more else []
+            if direct:  # an aligned answer that did not verify the frame is not kept as a rival of DIS's
+                search.cands, direct = [], False
             search.cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
             search.stages.append("more starts")
             self._reselect(search)
+        settled = direct  # an aligned first stage that verified the frame: nothing left to grow or re-align
         grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if cfg.search.grow else None
-        if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
-            search.cands += self._stage(ctx, [grown], first_views if direct else views, direct)
+        if grown is not None and not settled:  # the verified region's plane, refined again, may verify more
+            search.cands += self._stage(ctx, [grown], views)
             search.stages.append("grown")
             self._reselect(search)
-        if cfg.align.realign and (again := realign(ctx, search.best)) is not None:
+        if cfg.align.realign and (search.best.polished or not settled):  # DIS's noise under the spline
+            self._realign(search)
+        return search
+
+    def _realign(self, search: Search) -> None:
+        """The winner replaced by its re-alignment (:func:`~projreg.refine.candidates.realign`) when kept."""
+        ctx = search.ctx
+        if (again := realign(ctx, search.best)) is not None:
             search.cands = [again if c is search.best else c for c in search.cands]
             search.best, search.scores[again.key] = again, ctx.score(again.key, again.flow)
             search.stages.append("realigned")
             search.conf = self.confidence(ctx, search.cands, search.scores, again, search.repeats)
-        return search
 
     def _verdict(self, search: Search) -> tuple[Prediction, RefineInfo]:
         """Registered or not, and why; the bridge for a registered answer; the network's homography for one
@@ -221,20 +251,6 @@ class GeometricRefiner:
         pred = Prediction(best.flow, claimed if not why else np.zeros_like(claimed), not why, why)
         return pred, RefineInfo(best.hypothesis, best.label, scores, conf, ctx.share, tuple(search.stages))
 
-    def select(self, cands: list[Candidate], scores: dict[str, float]) -> Candidate:
-        """The winning candidate: the highest score (ties: the first tried), unless a homography alone
-        scores within ``plane_margin`` of it: where a plane explains the images as well as the plane plus
-        its fitted residual, the residual adds only DIS's noise."""
-        order = {c.key: i for i, c in enumerate(cands)}
-
-        def rank(c: Candidate) -> tuple[float, int]:
-            return scores[c.key], -order[c.key]
-
-        best = max(cands, key=rank)
-        plane = max((c for c in cands if c.plane), key=rank, default=None)
-        margin = self.config.selection.plane_margin
-        return plane if plane is not None and scores[plane.key] >= scores[best.key] - margin else best
-
     def confidence(
         self,
         ctx: PairContext,
@@ -253,29 +269,10 @@ class GeometricRefiner:
         self, ctx: PairContext, cands: list[Candidate], scores: dict[str, float], best: Candidate
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Candidate ``best``'s check maps, float32 ``(H, W)`` each: local NCC, forward-backward residual
-        (px) and the rivals' spread (px, :meth:`ambiguity`)."""
+        (px) and the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
         ncc = ctx.ncc(best.key, best.flow)
         residual = ctx.round_trip(self._dis(), best.key, best.flow)
-        return ncc, residual, self.ambiguity(ctx, cands, scores, best, ncc)
-
-    def ambiguity(
-        self, ctx: PairContext, cands: list[Candidate], scores: dict[str, float], best: Candidate, ncc: np.ndarray
-    ) -> np.ndarray:
-        """How far, per pixel, the rivals of ``best`` that explain the images about as well lie from it
-        (px, float32 ``(H, W)``).
-
-        A rival scores within ``rival_margin`` of the winner (a refitted plane is its candidate
-        simplified, not another explanation: never a rival) and counts at a pixel only where its own
-        local NCC is within ``rival_margin`` of the winner's there: two answers that both explain a
-        neighbourhood (a repeating pattern) leave it ambiguous; a rival that fails there is just wrong."""
-        margin = self.config.confidence.rival_margin
-        spread = np.zeros(ctx.shape, np.float32)
-        for c in cands:
-            if c.key == best.key or c.refitted or scores[c.key] < scores[best.key] - margin:
-                continue
-            explains = ctx.ncc(c.key, c.flow) >= ncc - margin
-            spread = np.maximum(spread, np.where(explains, flow_distance(c.flow, best.flow), 0.0))
-        return spread
+        return ncc, residual, ambiguity(ctx, cands, scores, best, ncc, self.config.confidence.rival_margin)
 
     def bridged(
         self,
@@ -325,7 +322,7 @@ class GeometricRefiner:
         return out
 
     def _refine_scored(self, ctx: PairContext, start: Start, view: str, direct: bool) -> list[Candidate]:
-        cands = align_start(ctx, start, view) if direct else refine_start(ctx, self._dis(), start, view)
+        cands = align_start(ctx, self._dis(), start, view) if direct else refine_start(ctx, self._dis(), start, view)
         for c in cands:
             ctx.ncc(c.key, c.flow)  # the score's map, computed on this thread
         return cands
@@ -344,7 +341,7 @@ class GeometricRefiner:
         """Score the new candidates, select, and verify the winner."""
         ctx, scores = search.ctx, search.scores
         scores.update({c.key: ctx.score(c.key, c.flow) for c in search.cands if c.key not in scores})
-        search.best = self.select(search.cands, scores)
+        search.best = select(search.cands, scores, self.config.selection.plane_margin)
         search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
 
     def _pool(self) -> ThreadPoolExecutor | None:
@@ -380,20 +377,21 @@ class GeometricRefiner:
         return dis
 
     def _predict_shrunk(
-        self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray, identity: bool
+        self,
+        projected: np.ndarray,
+        captured: np.ndarray,
+        flow: np.ndarray,
+        identity: bool,
+        finer: Callable[[], np.ndarray] | None,
     ) -> tuple[Prediction, RefineInfo]:
         """:meth:`predict_info` on the pair shrunk to ``images.max_side``; flow and confidence resized back
         (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``."""
         side = self.config.images.max_side
         small0, small1 = shrink(projected, side), shrink(captured, side)
-        pred, info = self.predict_info(small0, small1, resize_flow(flow, small0.shape), identity)
+        smaller = None if finer is None else lambda: resize_flow(finer(), small0.shape)
+        pred, info = self.predict_info(small0, small1, resize_flow(flow, small0.shape), identity, smaller)
         h, w = projected.shape[:2]
         conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
         claimed = (conf >= CONFIDENT) if pred.registered else np.zeros((h, w), bool)
         pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed)
         return pred, replace(info, confidence=conf)
-
-
-def claimed_share(conf: np.ndarray, ctx: PairContext) -> float:
-    """The share of the textured pixels an answer claims."""
-    return float((conf[ctx.textured] >= CONFIDENT).mean()) if ctx.textured.any() else 0.0

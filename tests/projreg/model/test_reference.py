@@ -12,22 +12,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
 from typer.testing import CliRunner
 
+from projreg.api import Registrar
 from projreg.cli import app
 from projreg.evaluation.report import check_thresholds, parse_threshold
-from projreg.inference.runtime import TorchNetwork, flows_resized
-from projreg.model.checkpoint import load_checkpoint, load_model, reference_checkpoint
+from projreg.model.checkpoint import load_checkpoint, reference_checkpoint
 from projreg.model.net import MODEL_CONFIGS
-from projreg.refine.config import DEFAULT_QUALITY, QUALITIES
-from projreg.refine.refiner import GeometricRefiner
+from projreg.refine.config import DEFAULT_QUALITY
 from projsynth.dataset.generate import generate
 from projsynth.dataset.plan import resolve_plan
 from projsynth.dataset.shards import ShardReader
 from projsynth.flow.formats import read_flow_exr
 
-CPU = torch.device("cpu")
 GATE = json.loads(Path(__file__).with_name("reference_gate.json").read_text())
 
 
@@ -106,10 +103,7 @@ def test_predict_uses_the_reference_by_default(gate_data, tmp_path):
     result = CliRunner().invoke(app, [str(a) for a in args] + ["-q"])
     assert result.exit_code == 0, result.stderr
     flow = read_flow_exr(tmp_path / "f.exr")[0]
-    default = QUALITIES[DEFAULT_QUALITY]  # the network at its side, then the default refinement
-    net = TorchNetwork(load_model(reference_checkpoint(), CPU), CPU)
-    raw = flows_resized(net, [(s["projected"], s["captured"])], default.network_side)[0]
-    expected = GeometricRefiner(default.refine).refine(s["projected"], s["captured"], raw)[0]
-    np.testing.assert_allclose(flow, expected, atol=1e-4)
+    named = Registrar(reference_checkpoint(), quality=DEFAULT_QUALITY, device="cpu")  # the weights named
+    np.testing.assert_allclose(flow, named.register(s["projected"], s["captured"]).flow, atol=1e-4)
     epe = np.linalg.norm(flow - s["flow"], axis=-1)[s["valid"]].mean()
     assert epe < np.linalg.norm(s["flow"], axis=-1)[s["valid"]].mean(), epe  # better than predicting zero flow

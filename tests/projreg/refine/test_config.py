@@ -29,14 +29,17 @@ def test_a_bad_value_is_refused_naming_its_section_and_field(sections, message):
 
 
 def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
-    assert list(QUALITIES) == ["fast", "balanced", "accurate"] and DEFAULT_QUALITY == "accurate"
+    assert list(QUALITIES) == ["fast", "balanced", "accurate"] and DEFAULT_QUALITY == "balanced"
     assert [q.refine for q in QUALITIES.values()] == [FAST, BALANCED, ACCURATE]
     assert ACCURATE == RefineConfig()  # the field defaults are the full search
     sides = [q.network_side for q in QUALITIES.values()]
     assert sides == sorted(sides)
     assert FAST.images.max_side is not None and BALANCED.images.max_side is None  # only fast shrinks the pair
     assert not FAST.search.identity and not FAST.search.sift
-    assert BALANCED.search.escalate_below < 1 <= ACCURATE.search.escalate_below
+    assert BALANCED.search.escalate_below < 1 <= ACCURATE.search.escalate_below and BALANCED.align.direct
+    balanced = QUALITIES["balanced"]  # the network at 256 px first, at up to 1024 where the search escalates
+    assert balanced.finer_side(1024) == 1024 and balanced.finer_side(200) is None and balanced.finer_side(512) == 512
+    assert QUALITIES["accurate"].finer_side(1024) is None
     with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, balanced, accurate"):
         quality("quick")
 

@@ -15,10 +15,11 @@ from projreg.geometry.homography import area_ratio, fit_homography, homography_f
 from projreg.geometry.images import texture_weight, to_gray
 from projreg.prediction import CONFIDENT
 from projreg.refine.candidates import Candidate, grown_start
-from projreg.refine.config import ACCURATE, BALANCED, FAST, RefineConfig
+from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, RefineConfig
 from projreg.refine.context import PairContext
 from projreg.refine.evidence import periodicity, repeating
 from projreg.refine.refiner import GeometricRefiner
+from projreg.refine.selection import ambiguity
 from projsynth.content.procedural import render_procedural
 
 from .rendered import bent_pair, coarse, epe, network_like
@@ -72,7 +73,7 @@ def test_refine_is_deterministic_whatever_the_workers_and_invariant_to_brightnes
     start = coarse(s, np.random.default_rng(4))
     a, info = GeometricRefiner().predict_info(s["projected"], s["captured"], start)
     b, _ = GeometricRefiner().predict_info(s["projected"], s["captured"], start)
-    one = GeometricRefiner(ACCURATE.with_sections(search={"workers": 1}))
+    one = GeometricRefiner(QUALITIES[DEFAULT_QUALITY].refine.with_sections(search={"workers": 1}))
     c, info_one = one.predict_info(s["projected"], s["captured"], start)
     for other in (b, c):  # two threads or one: the same candidates, the same order, the same answer
         np.testing.assert_array_equal(a.flow, other.flow)
@@ -144,7 +145,7 @@ def test_a_homography_too_bent_to_answer_still_starts_the_network_hypothesis(pic
     gt = homography_flow(H, h, w)
     net = gt + np.random.default_rng(3).normal(0, 1.5, gt.shape).astype(np.float32)
     pred, info = GeometricRefiner().predict_info(picture, captured, net)
-    assert info.hypothesis == "network" and "network/normalised" in info.scores
+    assert info.hypothesis == "network" and any(k.startswith("network/normalised") for k in info.scores)
     err = np.linalg.norm(pred.flow - gt, axis=-1)
     assert np.median(err) < 0.5 and err[pred.claimed].mean() < 0.5, (np.median(err), err[pred.claimed].mean())
 
@@ -380,7 +381,7 @@ def _spread(ref, projected, captured, flows, scores, best):
     cands = [Candidate(name, "normalised", flow) for name, flow in flows.items()]
     keyed = {f"{name}/normalised": score for name, score in scores.items()}
     winner = next(c for c in cands if c.hypothesis == best)
-    return ref.ambiguity(ctx, cands, keyed, winner, ctx.ncc(winner.key, winner.flow))
+    return ambiguity(ctx, cands, keyed, winner, ctx.ncc(winner.key, winner.flow), ref.config.confidence.rival_margin)
 
 
 def test_a_rival_is_ambiguity_only_where_it_also_explains_the_images(picture):
@@ -420,21 +421,30 @@ def test_grown_needs_a_partial_claim_and_a_plane_under_it(picture):
     assert grown_start(ctx, flow, np.zeros((h, w), bool)) is None  # nothing verified: no plane to grow from
 
 
-def test_the_second_stage_runs_only_where_the_first_leaves_texture_unverified(picture):
-    """The balanced quality tries the identity and SIFT only when the network's answer claims less than
-    ``escalate_below`` of the textured pixels: not on a bent pair the network got right (and the answer is
-    as good as the full search's), but on one where the network is lost."""
+def test_the_search_runs_only_where_the_direct_stage_leaves_texture_unverified(picture):
+    """The balanced quality aligns the network's start directly and stops there when that verifies the
+    frame: on a bent pair the network got right, no DIS candidate, no other start, the finer network flow
+    never asked for, and an answer as good as the full search's. Where the network is lost it asks for
+    the finer flow and runs the full search from it, the identity and SIFT included."""
     img0, img1, gt, valid = bent_pair(picture)
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
-    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, net)
-    assert "more starts" not in info.stages and not any(k.startswith(("identity/", "sift/")) for k in info.scores)
+    asked = []
+
+    def finer() -> np.ndarray:
+        asked.append(True)
+        return net
+
+    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, net, finer=finer)
+    assert "more starts" not in info.stages and not asked
+    assert all(k.startswith("network/") and "aligned" in k for k in info.scores), sorted(info.scores)
     full = GeometricRefiner(ACCURATE).predict(img0, img1, net)
     errors = [np.linalg.norm(p.flow - gt, axis=-1)[valid].mean() for p in (pred, full)]
     assert errors[0] < 0.5 and errors[0] < errors[1] + 0.05, errors
     lost = np.full_like(net, 40.0)
-    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, lost)
-    assert "more starts" in info.stages and any(k.startswith("sift/") for k in info.scores)
-    assert pred.registered and np.linalg.norm(pred.flow - gt, axis=-1)[pred.claimed & valid].mean() < 0.6
+    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, lost, finer=finer)
+    assert "more starts" in info.stages and asked == [True] and any(k.startswith("sift/") for k in info.scores)
+    assert "-aligned" not in info.images  # the unverified aligned answers left the selection
+    assert pred.registered and np.linalg.norm(pred.flow - gt, axis=-1)[pred.claimed & valid].mean() < 0.3
 
 
 def test_a_photo_of_another_picture_claims_next_to_nothing():
