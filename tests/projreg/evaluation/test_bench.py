@@ -414,3 +414,28 @@ def test_bench_takes_a_batch_size(tiny_train, tiny_ckpt, tmp_path):
     result = _cli("bench", *args, "--batch-size", "2", "-q")
     assert result.exit_code == 0, result.stderr
     assert json.loads(out.read_text())["results"][0]["images"] == 3
+
+
+def test_the_default_model_row_escalates_to_the_network_at_its_full_side(monkeypatch, tiny_val):
+    """``bench``'s default row is what ``predict`` runs: the network at 256 px, and on a pair the first
+    stage leaves unverified (here: the camera saw black) the network again at 1024 px at most."""
+    from projreg.model.checkpoint import reference_checkpoint
+    from projreg.refine.config import DEFAULT_QUALITY, QUALITIES
+
+    asked = []
+    real = projreg.evaluation.methods.finer_flow
+
+    def spy(net, projected, captured, side):
+        inner = real(net, projected, captured, side)
+        return None if inner is None else (lambda: asked.append(side) or inner())
+
+    monkeypatch.setattr(projreg.evaluation.methods, "finer_flow", spy)
+    method = projreg.evaluation.methods.model_methods(reference_checkpoint())[0]
+    assert method.name == "reference"
+    reader = ShardReader(tiny_val)
+    try:
+        s = reader.read(0)
+    finally:
+        reader.close()
+    pred = as_prediction(method.predict(s["projected"], np.zeros_like(s["captured"])))
+    assert asked == [QUALITIES[DEFAULT_QUALITY].escalate_side] == [1024] and not pred.registered
