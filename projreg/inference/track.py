@@ -7,9 +7,12 @@ need not be registered from scratch:
    the network and the geometric refinement, :mod:`projreg.refine`).
 2. Every other frame is the geometric refinement from the previous frame's flow instead of the
    network's (``GeometricRefiner.predict_info`` with ``identity=False``): the homography fitted to
-   it, DIS residuals, the smooth surface model, on normalised, plain and albedo images, the best scored.
-   The network does not run. Nothing accumulates from frame to frame but the starting homography:
-   the flow is measured afresh on the frame's images.
+   it, then (``balanced``, ``fast``) its direct alignment on the normalised images only, polished
+   (``TrackConfig.views``, ``polish``), or (``accurate``) DIS residuals and the smooth surface model on
+   normalised, plain and albedo images, the best scored; a tracked frame the first stage leaves
+   unverified escalates to the DIS search of every view as a full one does. The network does not run.
+   Nothing accumulates from frame to frame but the starting homography: the flow is measured afresh
+   on the frame's images.
 3. The tracked flow's score (the refinement's texture-weighted local NCC) is compared with the score
    of the last full registration: below it by more than ``drop``, or below ``floor``, or when the
    previous flow has no homography fit, the track is lost and the frame is registered in full.
@@ -38,11 +41,13 @@ STEPS = ("full", "tracked", "lost")  # how a frame was registered: first frame, 
 
 @dataclass(frozen=True)
 class TrackConfig:
-    """The lost-track test on the score (module docstring, step 3); set by hand, not tuned on a split
-    (docs/design.md)."""
+    """The lost-track test on the score (module docstring, step 3), set by hand, not tuned on a split
+    (docs/design.md); and how a refinement that aligns directly (``align.direct``) follows a frame."""
 
-    drop: float = 0.08
-    floor: float = 0.2
+    drop: float = 0.08  # a tracked score this far below the last full registration's loses the track
+    floor: float = 0.2  # ... as does one below this
+    views: tuple[str, ...] = ("normalised",)  # a tracked frame is aligned on these views only ...
+    polish: bool = True  # ... polished by DIS (a bend the alignment leaves), the winner re-aligned as usual
 
 
 class Tracker:
@@ -62,6 +67,9 @@ class Tracker:
         self.register = register
         self.refiner = refiner or GeometricRefiner()
         self.config = config or TrackConfig()
+        cfg = self.refiner.config
+        light = {"views": self.config.views, "polish": self.config.polish}
+        self.follow = GeometricRefiner(cfg.with_sections(align=light)) if cfg.align.direct else self.refiner
         self.counts = dict.fromkeys(STEPS, 0)
         self.last = ""
         self.reset()
@@ -74,7 +82,7 @@ class Tracker:
     def __call__(self, projected: np.ndarray, captured: np.ndarray) -> Prediction:
         """The registration of the next frame of the sequence."""
         if self._flow is not None:
-            pred, info = self.refiner.predict_info(projected, captured, self._flow, identity=False)
+            pred, info = self.follow.predict_info(projected, captured, self._flow, identity=False)
             score = info.scores.get(f"{info.hypothesis}/{info.images}", -1.0)
             if info.hypothesis == "network" and score >= max(self._reference - self.config.drop, self.config.floor):
                 self._flow = pred.flow
