@@ -204,10 +204,12 @@ class GeometricRefiner:
             search.cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
             search.stages.append("more starts")
             self._reselect(search)
-        settled = direct  # an aligned first stage that verified the frame: nothing left to grow or re-align
-        grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if cfg.search.grow else None
-        if grown is not None and not settled:  # the verified region's plane, refined again, may verify more
-            search.cands += self._stage(ctx, [grown], views)
+        # an aligned first stage that verified what its stop rule asks: nothing left to grow or re-align
+        settled = direct and claimed >= cfg.search.escalate_below > 0
+        grow = cfg.search.grow and not settled
+        grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if grow else None
+        if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
+            search.cands += self._stage(ctx, [grown], first_views if direct else views, direct)
             search.stages.append("grown")
             self._reselect(search)
         if cfg.align.realign and (search.best.polished or not settled):  # DIS's noise under the spline

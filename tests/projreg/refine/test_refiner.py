@@ -336,20 +336,25 @@ def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(sampl
     assert epe < 1.0, epe  # sub-pixel at half size still
 
 
-def test_the_verified_regions_plane_grows_a_partial_answer_over_the_frame(picture):
+@pytest.mark.parametrize("quality", [ACCURATE, BALANCED, FAST], ids=["accurate", "balanced", "fast"])
+def test_the_verified_regions_plane_grows_a_partial_answer_over_the_frame(picture, quality):
     """A network-like flow 45 px off on the left 60 % of a bent pair: its candidate verifies the right part
-    only (14 px mean EPE, 41 % claimed); the homography of that part, refined, registers the whole frame."""
+    only (14 px mean EPE, 41 % claimed); the homography of that part, refined, registers the whole frame.
+    ``fast`` grows too (it never escalates: growth is its only second start), but its one aligned start at
+    256 px does not close 45 px: there it only claims a little more."""
     projected, captured, flow, valid = bent_pair(picture, amp=8.0, period=300.0)
     network = flow.copy()
     network[:, :154] += np.float32([40.0, -20.0])
     results = {}
     for grow in (False, True):
-        cfg = ACCURATE.with_sections(search={"identity": False, "sift": False, "grow": grow})
+        cfg = quality.with_sections(search={"identity": False, "sift": False, "grow": grow})
         pred, info = GeometricRefiner(cfg).predict_info(projected, captured, network)
         results[grow] = (epe(pred.flow, {"flow": flow, "valid": valid}), pred.claimed.mean(), info.hypothesis)
     (lost, lost_claimed, _), (grown, grown_claimed, hypothesis) = results.values()
     assert lost > 5.0 and lost_claimed < 0.6  # without it, the left part stays where the network put it
-    assert hypothesis == "grown" and grown < 0.6 and grown_claimed > 0.75
+    assert hypothesis == "grown" and grown_claimed > lost_claimed
+    if quality is not FAST:
+        assert grown < 0.6 and grown_claimed > 0.75
 
 
 def test_a_flat_gap_is_claimed_where_the_answer_agrees_with_its_verified_plane(picture):
