@@ -93,6 +93,8 @@ class SearchConfig:
     escalate_below: float = 1.0  # the second stage (the identity and SIFT starts, the views not in
     # first_views) runs only when the first stage's answer claims less than this share of the textured
     # pixels (1.0: always, every start and view in one stage)
+    settle_at: float = 1.0  # with align.direct, a first stage claiming at least this share of the visible
+    # texture is final: no growth, and no re-alignment unless its winner was polished
     grow: bool = True  # a partial answer's verified plane starts one more hypothesis
     grow_below: float = 0.8  # ... when the answer claims less than this share of the frame
     workers: int = 2  # threads refining a stage's candidates side by side (OpenCV and numpy release the GIL)
@@ -176,7 +178,7 @@ class RefineConfig:
             raise ProjregError(f"refine images.max_side must be >= {MIN_SIDE}, got {im.max_side}")
         if im.albedo and (im.albedo_window < 3 or im.albedo_window % 2 == 0):
             raise ProjregError(f"refine images.albedo_window must be an odd number >= 3, got {im.albedo_window}")
-        for name in ("grow_below", "escalate_below"):
+        for name in ("grow_below", "escalate_below", "settle_at"):
             if not 0 <= getattr(se, name) <= 1:
                 raise ProjregError(f"refine search.{name} must be in [0, 1], got {getattr(se, name)}")
         if se.sift_side is not None and se.sift_side < MIN_SIDE:
@@ -218,7 +220,7 @@ class Quality:
 # bridge. Their figures: docs/results.md.
 ACCURATE = RefineConfig()
 BALANCED = ACCURATE.with_sections(
-    align={"direct": True, "views": ("normalised", "plain")}, search={"escalate_below": 0.85}
+    align={"direct": True, "views": ("normalised", "plain")}, search={"escalate_below": 0.85, "settle_at": 0.85}
 )
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),

@@ -204,8 +204,8 @@ class GeometricRefiner:
             search.cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
             search.stages.append("more starts")
             self._reselect(search)
-        # an aligned first stage that verified what its stop rule asks: nothing left to grow or re-align
-        settled = direct and claimed >= cfg.search.escalate_below > 0
+        # an aligned first stage that verified what ``settle_at`` asks: nothing left to grow or re-align
+        settled = direct and claimed >= cfg.search.settle_at
         grow = cfg.search.grow and not settled
         grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if grow else None
         if grown is not None:  # the verified region's plane, refined again, may verify more of the frame

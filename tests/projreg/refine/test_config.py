@@ -16,6 +16,7 @@ from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUA
         ({"images": {"max_side": 16}}, "images.max_side must be >= 32"),
         ({"search": {"grow_below": 1.5}}, "search.grow_below"),
         ({"search": {"escalate_below": -0.1}}, "search.escalate_below"),
+        ({"search": {"settle_at": 1.5}}, "search.settle_at"),
         ({"search": {"workers": 0}}, "search.workers"),
         ({"search": {"sift_side": 16}}, "search.sift_side"),
         ({"selection": {"plane_margin": -0.1}}, "selection.plane_margin"),
