@@ -38,42 +38,40 @@ def flow_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class PairContext:
-    """One pair as every stage reads it (:meth:`build`).
+class Projected:
+    """What the refinement reads from the projected image alone (:meth:`build`), shared by every pair
+    with that image: a tracked sequence, or a folder of captures of one picture.
 
-    ``plain``/``normalised``: the gray images ``(projected, captured)`` without and with local contrast
-    normalisation; ``evidence``: the projected image's texture weight in [0, 1] (absolute floor);
-    ``share``: its textured share of the frame; ``textured``/``support``: bool maps of the textured
-    pixels and of those near enough to texture to be measured; ``step``: the fits' grid step;
-    ``weights``: each view's texture weight for the surface fit; ``memo``: each candidate's check maps,
-    by key (scored once, read again by the confidence).
+    ``image``: the uint8 RGB image it was built from (a copy, to recognise it: :meth:`matches`);
+    ``plain``/``normalised``: its gray image without and with local contrast normalisation; ``evidence``,
+    ``share``, ``textured``, ``support``, ``step``: as :class:`PairContext`'s; ``reference``: the local
+    statistics the NCC maps compare with; ``weights``: each view's texture weight, by view, filled as
+    asked; ``repeats``: where the image repeats itself (None until the refinement has measured it).
     """
 
-    config: RefineConfig
-    plain: tuple[np.ndarray, np.ndarray]
-    normalised: tuple[np.ndarray, np.ndarray]
+    image: np.ndarray
+    plain: np.ndarray
+    normalised: np.ndarray
     evidence: np.ndarray
     share: float
     textured: np.ndarray
     support: np.ndarray
     step: int
+    reference: LocalStats
     weights: dict[str, np.ndarray] = field(default_factory=dict)
-    pyramids: dict[str, dict[int, Level]] = field(default_factory=dict)
-    memo: dict[str, np.ndarray] = field(default_factory=dict)
-    _reference: LocalStats | None = None
-    _lock: threading.Lock = field(default_factory=threading.Lock)
+    repeats: np.ndarray | None = None
 
     @classmethod
-    def build(cls, projected: np.ndarray, captured: np.ndarray, config: RefineConfig) -> PairContext:
-        """The context of a pair of uint8 RGB ``(H, W, 3)`` images."""
+    def build(cls, projected: np.ndarray, config: RefineConfig) -> Projected:
+        """The projected side of a uint8 RGB ``(H, W, 3)`` image under ``config``."""
         im = config.images
-        plain = (to_gray(projected), to_gray(captured))
-        normalised = (normalize_contrast(plain[0], im.contrast_sigma), normalize_contrast(plain[1], im.contrast_sigma))
-        evidence = texture_weight(plain[0], im.texture_floor, im.texture_sigma)
+        plain = to_gray(projected)
+        normalised = normalize_contrast(plain, im.contrast_sigma)
+        evidence = texture_weight(plain, im.texture_floor, im.texture_sigma)
         textured = evidence >= im.textured_at
-        h, w = plain[0].shape
+        h, w = plain.shape
         return cls(
-            config,
+            projected.copy(),
             plain,
             normalised,
             evidence,
@@ -81,7 +79,65 @@ class PairContext:
             textured,
             near(textured, config.surface.support_margin * max(h, w)),
             fit_step(h, w, config.fit.fit_points),
+            LocalStats(normalised, config.selection.ncc_sigma),
         )
+
+    def matches(self, projected: np.ndarray) -> bool:
+        """Whether ``projected`` is the image this was built from."""
+        return self.image.shape == projected.shape and np.array_equal(self.image, projected)
+
+
+@dataclass
+class PairContext:
+    """One pair as every stage reads it (:meth:`build`).
+
+    ``side``: what the projected image alone gives (:class:`Projected`, shared between pairs);
+    ``plain``/``normalised``: the gray images ``(projected, captured)`` without and with local contrast
+    normalisation; ``evidence``: the projected image's texture weight in [0, 1] (absolute floor);
+    ``share``: its textured share of the frame; ``textured``/``support``: bool maps of the textured
+    pixels and of those near enough to texture to be measured; ``step``: the fits' grid step;
+    ``pyramids``: each view's pyramid for the direct alignment; ``memo``: each candidate's check maps,
+    by key (scored once, read again by the confidence).
+    """
+
+    config: RefineConfig
+    side: Projected
+    plain: tuple[np.ndarray, np.ndarray]
+    normalised: tuple[np.ndarray, np.ndarray]
+    pyramids: dict[str, dict[int, Level]] = field(default_factory=dict)
+    memo: dict[str, np.ndarray] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @classmethod
+    def build(
+        cls, projected: np.ndarray, captured: np.ndarray, config: RefineConfig, side: Projected | None = None
+    ) -> PairContext:
+        """The context of a pair of uint8 RGB ``(H, W, 3)`` images; ``side``: the projected image's, when
+        already built (:meth:`Projected.matches`)."""
+        side = side or Projected.build(projected, config)
+        gray = to_gray(captured)
+        normalised = normalize_contrast(gray, config.images.contrast_sigma)
+        return cls(config, side, (side.plain, gray), (side.normalised, normalised))
+
+    @property
+    def evidence(self) -> np.ndarray:
+        return self.side.evidence
+
+    @property
+    def share(self) -> float:
+        return self.side.share
+
+    @property
+    def textured(self) -> np.ndarray:
+        return self.side.textured
+
+    @property
+    def support(self) -> np.ndarray:
+        return self.side.support
+
+    @property
+    def step(self) -> int:
+        return self.side.step
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -101,11 +157,12 @@ class PairContext:
     def weight(self, view: str) -> np.ndarray:
         """The surface fit's texture weight on ``view``: relative on the normalised images, with the
         absolute floor on the others."""
-        if view not in self.weights:
+        weights = self.side.weights
+        if view not in weights:
             floor = 0.0 if view == "normalised" else self.config.images.texture_floor
             gray = self.normalised[0] if view == "normalised" else self.plain[0]
-            self.weights[view] = texture_weight(gray, floor, self.config.images.texture_sigma)
-        return self.weights[view]
+            weights[view] = texture_weight(gray, floor, self.config.images.texture_sigma)
+        return weights[view]
 
     def pyramid(self, view: str) -> dict[int, Level]:
         """``view``'s image pyramid for the direct alignment (``align.levels``), built once."""
@@ -142,10 +199,7 @@ class PairContext:
         ``flow``, kept under ``key``."""
         memo_key = f"ncc:{key}"
         if memo_key not in self.memo:
-            with self._lock:
-                if self._reference is None:
-                    self._reference = LocalStats(self.normalised[0], self.config.selection.ncc_sigma)
-            self.memo[memo_key] = self._reference.ncc(self.seen(flow))
+            self.memo[memo_key] = self.side.reference.ncc(self.seen(flow))
         return self.memo[memo_key]
 
     def score(self, key: str, flow: np.ndarray) -> float:

@@ -45,7 +45,7 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import cv2
@@ -70,7 +70,7 @@ from .candidates import (
 )
 from .confidence import gap_confidence, pixel_confidence
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
-from .context import PairContext, flow_distance
+from .context import PairContext, Projected, flow_distance
 from .evidence import repeating, unverified
 from .selection import ambiguity, select
 
@@ -100,6 +100,7 @@ class GeometricRefiner:
         self._local = threading.local()  # each thread's own DIS instance
         self._sift = SiftHomography() if self.config.search.sift else None
         self._pools: dict[int, ThreadPoolExecutor] = {}  # by process: a forked child starts its own threads
+        self._side: Projected | None = None  # the last projected image's side, reused while it repeats
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
         """The refined flow of one pair and what was chosen (:meth:`predict_info` without the verdict)."""
@@ -150,7 +151,7 @@ class GeometricRefiner:
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
-        ctx = PairContext.build(projected, captured, self.config)
+        ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
         if ctx.share < self.config.images.textureless_below:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
             return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, ctx.share)
@@ -171,14 +172,10 @@ class GeometricRefiner:
         With ``align.direct`` the first stage aligns its starts directly on ``align.views``; the
         second adds the DIS-refined candidates of every start and view."""
         cfg, conf_cfg = self.config, self.config.confidence
-        pending = self._submit(
-            repeating,
-            ctx.normalised[0],
-            conf_cfg.periodic_peak,
-            conf_cfg.coarse_peak,
-            conf_cfg.periodic_tiles,
-            conf_cfg.periodic_lobe,
-        )
+        measure = conf_cfg.periodic and ctx.side.repeats is None  # once per projected image ...
+        periodic = (conf_cfg.periodic_peak, conf_cfg.coarse_peak, conf_cfg.periodic_tiles, conf_cfg.periodic_lobe)
+        pool = self._pool()  # ... on the pool while the first stage refines
+        pending = pool.submit(repeating, ctx.normalised[0], *periodic) if measure and pool is not None else None
         network, first, usable = network_starts(ctx, flow)
         views, direct = list(ctx.views()), cfg.align.direct
         first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
@@ -190,7 +187,9 @@ class GeometricRefiner:
         else:
             cands, stages = self._stage(ctx, first, first_views, direct), ["network"]
         search = Search(ctx, network, cands, {}, stages)
-        search.repeats = pending.result() if conf_cfg.periodic else None
+        if measure:
+            ctx.side.repeats = pending.result() if pending is not None else repeating(ctx.normalised[0], *periodic)
+        search.repeats = ctx.side.repeats
         self._reselect(search)
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
         claimed = ctx.claimed_share(search.conf, search.best.flow)
@@ -306,7 +305,8 @@ class GeometricRefiner:
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
         """The selection score of ``flow`` on a pair of uint8 RGB images, as :meth:`predict_info` scores its
         candidates (at the pair's own size)."""
-        return PairContext.build(projected, captured, self.config).score("flow", np.asarray(flow, np.float32))
+        ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
+        return ctx.score("flow", np.asarray(flow, np.float32))
 
     def _stage(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list[Candidate]:
         """Every start refined on each of ``views`` (the albedo view from the network's and SIFT's starts only),
@@ -362,15 +362,12 @@ class GeometricRefiner:
             return [fn(item) for item in items]
         return list(pool.map(fn, items))
 
-    def _submit(self, fn, *args) -> Future:
-        """``fn(*args)`` on the pool when there is one (else now), as a future; nothing when the
-        periodicity test is off (its one use)."""
-        pool = self._pool()
-        if pool is not None and self.config.confidence.periodic:
-            return pool.submit(fn, *args)
-        future: Future = Future()
-        future.set_result(fn(*args) if self.config.confidence.periodic else None)
-        return future
+    def _projected(self, projected: np.ndarray) -> Projected:
+        """The projected side of ``projected`` (:class:`~projreg.refine.context.Projected`): the last one
+        when it is the same image (a tracked sequence, a folder of captures of one picture), else built."""
+        if self._side is None or not self._side.matches(projected):
+            self._side = Projected.build(projected, self.config)
+        return self._side
 
     def _dis(self) -> cv2.DISOpticalFlow:
         dis = getattr(self._local, "dis", None)

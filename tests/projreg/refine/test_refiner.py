@@ -16,7 +16,7 @@ from projreg.geometry.images import texture_weight, to_gray
 from projreg.prediction import CONFIDENT
 from projreg.refine.candidates import Candidate, grown_start
 from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, RefineConfig
-from projreg.refine.context import PairContext
+from projreg.refine.context import PairContext, Projected
 from projreg.refine.evidence import periodicity, repeating
 from projreg.refine.refiner import GeometricRefiner
 from projreg.refine.selection import ambiguity
@@ -470,6 +470,30 @@ def test_a_photo_of_another_picture_claims_next_to_nothing():
             assert pred.claimed.mean() < 0.03, (other, config.search, pred.claimed.mean())
             if other == "chelsea":
                 assert not pred.registered and not pred.claimed.any(), (config.search, pred.reason)
+
+
+def test_pairs_of_one_projected_image_share_its_side_and_answer_as_alone(picture, monkeypatch):
+    """A tracked sequence or a folder of captures of one picture: what the projected image alone gives
+    (its views, texture, periodicity map) is built once and reused while the image repeats; every answer
+    is the one a fresh refiner gives, and another image is not answered with the last one's side."""
+    img0, cap_a, gt, _ = bent_pair(picture, seed=1)
+    _, cap_b, _, _ = bent_pair(picture, seed=2)
+    other = np.ascontiguousarray(picture[:, ::-1])
+    net = network_like(gt, np.ones(gt.shape[:2], bool), np.random.default_rng(13))
+    built, build = [], Projected.build.__func__
+    monkeypatch.setattr(Projected, "build", classmethod(lambda cls, *a: built.append(1) or build(cls, *a)))
+    shared = GeometricRefiner(BALANCED)
+    first = shared.predict_info(img0, cap_a, net)[1]
+    pairs = [(img0.copy(), cap_b), (other, cap_b), (img0, cap_a)]
+    for i, (projected, captured) in enumerate(pairs):
+        before = len(built)
+        got, info = shared.predict_info(projected, captured, net)
+        assert len(built) - before == (i > 0)  # the same picture (another array): its side reused
+        alone, info_alone = GeometricRefiner(BALANCED).predict_info(projected, captured, net)
+        np.testing.assert_array_equal(got.flow, alone.flow)
+        np.testing.assert_array_equal(got.claimed, alone.claimed)
+        assert info.scores == info_alone.scores
+    assert first.scores == info.scores  # back to the first pair: its answer again
 
 
 def _refine_in_child(refiner, pair, queue) -> None:
