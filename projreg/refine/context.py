@@ -183,13 +183,18 @@ class PairContext:
         sigma = self.config.images.contrast_sigma
         return dis.calc(self.normalised[0], normalize_contrast(self._divide_albedo(warped), sigma), None)
 
-    def seen(self, flow: np.ndarray) -> np.ndarray:
+    def seen(self, key: str, flow: np.ndarray) -> np.ndarray:
         """The captured image warped back by ``flow`` as the selection and the checks compare it with the
-        normalised projected image: normalised, the wall's reflectance divided out first with ``albedo``."""
-        im = self.config.images
-        if not im.albedo:
-            return warp_back(self.normalised[1], flow)
-        return normalize_contrast(self._divide_albedo(warp_back(self.plain[1], flow)), im.contrast_sigma)
+        normalised projected image: normalised, the wall's reflectance divided out first with ``albedo``;
+        kept under ``key``."""
+        memo_key, im = f"seen:{key}", self.config.images
+        if memo_key not in self.memo:
+            if not im.albedo:
+                self.memo[memo_key] = warp_back(self.normalised[1], flow)
+            else:
+                warped = self._divide_albedo(warp_back(self.plain[1], flow))
+                self.memo[memo_key] = normalize_contrast(warped, im.contrast_sigma)
+        return self.memo[memo_key]
 
     def _divide_albedo(self, warped: np.ndarray) -> np.ndarray:
         return divide_albedo(self.plain[0], warped, self.config.images.albedo_window)
@@ -199,7 +204,7 @@ class PairContext:
         ``flow``, kept under ``key``."""
         memo_key = f"ncc:{key}"
         if memo_key not in self.memo:
-            self.memo[memo_key] = self.side.reference.ncc(self.seen(flow))
+            self.memo[memo_key] = self.side.reference.ncc(self.seen(key, flow))
         return self.memo[memo_key]
 
     def score(self, key: str, flow: np.ndarray) -> float:
@@ -220,7 +225,7 @@ class PairContext:
         warped back by ``flow``: what DIS still finds to move either way round; ~0 where the flow holds."""
         memo_key = f"residual:{key}"
         if memo_key not in self.memo:
-            gray0, warped = self.normalised[0], self.seen(flow)
+            gray0, warped = self.normalised[0], self.seen(key, flow)
             fwd = dis.calc(gray0, warped, None)
             bwd = dis.calc(warped, gray0, None)
             zero = np.zeros_like(fwd)
