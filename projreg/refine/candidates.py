@@ -188,8 +188,8 @@ def align_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: s
     flow = bound_outside(aligned(ctx, view, homography_flow(start.H, h, w)), start.prior, ctx.support, sf.free_px)
     out = [Candidate(start.name, view, flow, aligned=True)]
     for on in (view, "albedo") if view == "plain" and cfg.images.albedo else (view,):
-        if cfg.align.polish:
-            polished = surface(ctx, on, flow, ctx.residual(dis, on, flow), start.prior)
+        if cfg.align.polish:  # the albedo view's warped image is the aligned candidate's own seen one
+            polished = surface(ctx, on, flow, ctx.residual(dis, on, flow, out[0].key), start.prior)
             out.append(Candidate(start.name, on, polished, aligned=True, polished=True))
     found = fit_homography(flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is not None:

@@ -172,29 +172,30 @@ class PairContext:
                 self.pyramids[view] = pyramid(gray0, gray1, self.evidence, self.config.align.levels)
         return self.pyramids[view]
 
-    def residual(self, dis: cv2.DISOpticalFlow, view: str, base: np.ndarray) -> np.ndarray:
+    def residual(self, dis: cv2.DISOpticalFlow, view: str, base: np.ndarray, key: str | None = None) -> np.ndarray:
         """DIS flow from the projected image to the captured one warped back by ``base``, on ``view``;
         on the albedo view the warped image is divided by the wall's reflectance first and both are
-        normalised."""
-        gray0, gray1 = self.views()[view] if view != "albedo" else self.plain
-        warped = warp_back(gray1, base)
-        if view != "albedo":
-            return dis.calc(gray0, warped, None)
-        sigma = self.config.images.contrast_sigma
-        return dis.calc(self.normalised[0], normalize_contrast(self._divide_albedo(warped), sigma), None)
+        normalised: what :meth:`seen` shows of ``base``, kept under ``key`` when given (the candidate
+        ``base`` is)."""
+        if view == "albedo":
+            return dis.calc(self.normalised[0], self.seen(key, base) if key else self._seen(base), None)
+        gray0, gray1 = self.views()[view]
+        return dis.calc(gray0, warp_back(gray1, base), None)
 
     def seen(self, key: str, flow: np.ndarray) -> np.ndarray:
         """The captured image warped back by ``flow`` as the selection and the checks compare it with the
         normalised projected image: normalised, the wall's reflectance divided out first with ``albedo``;
         kept under ``key``."""
-        memo_key, im = f"seen:{key}", self.config.images
+        memo_key = f"seen:{key}"
         if memo_key not in self.memo:
-            if not im.albedo:
-                self.memo[memo_key] = warp_back(self.normalised[1], flow)
-            else:
-                warped = self._divide_albedo(warp_back(self.plain[1], flow))
-                self.memo[memo_key] = normalize_contrast(warped, im.contrast_sigma)
+            self.memo[memo_key] = self._seen(flow)
         return self.memo[memo_key]
+
+    def _seen(self, flow: np.ndarray) -> np.ndarray:
+        im = self.config.images
+        if not im.albedo:
+            return warp_back(self.normalised[1], flow)
+        return normalize_contrast(self._divide_albedo(warp_back(self.plain[1], flow)), im.contrast_sigma)
 
     def _divide_albedo(self, warped: np.ndarray) -> np.ndarray:
         return divide_albedo(self.plain[0], warped, self.config.images.albedo_window)
