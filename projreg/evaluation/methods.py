@@ -81,7 +81,7 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
     net = open_network(path, backend=run.backend, device=run.device, precision=run.precision)
     name = (name or Path(path).stem) + ("" if setting.name == DEFAULT_QUALITY else f"-{setting.name}")
     refiner = GeometricRefiner(setting.refine)
-    max_side, finer_side = setting.network_side, setting.finer_side(setting.escalate_side or setting.network_side)
+    max_side, finer_side = setting.network_side, setting.finer_side()
     batched = BatchedFlows(net, max_side, batch_size) if batch_size > 1 else None
 
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:

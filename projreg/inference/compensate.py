@@ -19,7 +19,7 @@ from projsynth.flow.formats import read_flow_exr
 from projsynth.utils.images import load_image
 
 from ..errors import ProjregError
-from ..geometry.warp import pixel_maps
+from ..geometry.warp import lands_inside, pixel_maps
 from .outputs import guard_outputs, require_suffix, write_png
 from .radiometric import CLIPPED_SHARE, calibrate, solve
 
@@ -71,12 +71,7 @@ def lands_in_frame(flow: np.ndarray, valid: np.ndarray, camera_size: tuple[int, 
     """``valid`` where the flow is finite and lands inside the camera frame ``(Hc, Wc)`` (pixel centres
     at integers: positions in ``[-0.5, Wc - 0.5] x [-0.5, Hc - 0.5]``); elsewhere a projector pixel has
     no camera pixel to take its content from."""
-    h, w = valid.shape
-    xs, ys = pixel_maps(h, w)
-    with np.errstate(invalid="ignore", over="ignore"):
-        x, y = xs + flow[..., 0].astype(np.float64), ys + flow[..., 1].astype(np.float64)
-        inside = (x >= -0.5) & (x <= camera_size[1] - 0.5) & (y >= -0.5) & (y <= camera_size[0] - 0.5)
-    return np.asarray(valid, bool) & inside  # NaN compares False: not inside
+    return np.asarray(valid, bool) & lands_inside(flow, camera_size, 0.5)
 
 
 def _camera_size(header: dict[str, str], flow: Path) -> tuple[int, int] | None:

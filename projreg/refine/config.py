@@ -205,10 +205,12 @@ class Quality:
     about: str
     escalate_side: int | None = None
 
-    def finer_side(self, max_side: int) -> int | None:
-        """The escalation's network side under a user's ``--max-side``: None when it would see no more."""
-        side = None if self.escalate_side is None else min(self.escalate_side, max_side)
-        return side if side is not None and side > min(self.network_side, max_side) else None
+    def finer_side(self, max_side: int | None = None) -> int | None:
+        """The escalation's network side under a user's ``--max-side`` (None: no cap): None when it would
+        see no more than the first pass."""
+        cap = self.escalate_side if max_side is None else max_side
+        side = None if self.escalate_side is None else min(self.escalate_side, cap)
+        return side if side is not None and side > min(self.network_side, cap) else None
 
 
 # ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and

@@ -24,7 +24,7 @@ from ..geometry.images import (
     to_gray,
     weighted_mean,
 )
-from ..geometry.warp import compose, pixel_maps, warp_back
+from ..geometry.warp import compose, lands_inside, warp_back
 from ..prediction import CONFIDENT
 from .config import RefineConfig
 
@@ -215,10 +215,7 @@ class PairContext:
     def claimed_share(self, conf: np.ndarray, flow: np.ndarray) -> float:
         """The share of the textured pixels that ``flow`` keeps in the captured frame which an answer of
         confidence ``conf`` claims (the pixels it sends out of the frame cannot be verified)."""
-        h, w = self.shape
-        x, y = pixel_maps(h, w)
-        mx, my = x + flow[..., 0], y + flow[..., 1]
-        seen = self.textured & (mx >= 0) & (my >= 0) & (mx <= w - 1) & (my <= h - 1)
+        seen = self.textured & lands_inside(flow, self.shape)
         return float((conf[seen] >= CONFIDENT).mean()) if seen.any() else 0.0
 
     def round_trip(self, dis: cv2.DISOpticalFlow, key: str, flow: np.ndarray) -> np.ndarray:

@@ -40,6 +40,7 @@ def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
     assert BALANCED.search.escalate_below < 1 <= ACCURATE.search.escalate_below and BALANCED.align.direct
     balanced = QUALITIES["balanced"]  # the network at 256 px first, at up to 1024 where the search escalates
     assert balanced.finer_side(1024) == 1024 and balanced.finer_side(200) is None and balanced.finer_side(512) == 512
+    assert balanced.finer_side() == 1024  # no user cap: the quality's own
     assert QUALITIES["accurate"].finer_side(1024) is None
     with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, balanced, accurate"):
         quality("quick")
