@@ -7,12 +7,13 @@ need not be registered from scratch:
    the network and the geometric refinement, :mod:`projreg.refine`).
 2. Every other frame is the geometric refinement from the previous frame's flow instead of the
    network's (``GeometricRefiner.predict_info`` with ``identity=False``): the homography fitted to
-   it, then (``balanced``, ``fast``) its direct alignment on the normalised images only, polished
-   (``TrackConfig.views``, ``polish``), or (``accurate``) DIS residuals and the smooth surface model on
-   normalised, plain and albedo images, the best scored; a tracked frame the first stage leaves
-   unverified escalates to the DIS search of every view as a full one does. The network does not run.
-   Nothing accumulates from frame to frame but the starting homography: the flow is measured afresh
-   on the frame's images.
+   it, then (``balanced``, ``fast``) the direct alignment on the normalised images only, started from
+   the previous answer's smooth surface (its homography and a fine P-spline of the rest: the surface's
+   bend carries over from frame to frame) and not polished (``TrackConfig``), or (``accurate``) DIS
+   residuals and the smooth surface model on normalised, plain and albedo images, the best scored; a
+   tracked frame the first stage leaves unverified escalates to the DIS search of every view as a full
+   one does. The network does not run. The previous answer is only a start: the flow is measured
+   afresh on the frame's images.
 3. The tracked flow's score (the refinement's texture-weighted local NCC) is compared with the score
    of the last full registration: below it by more than ``drop``, or below ``floor``, or when the
    previous flow has no homography fit, the track is lost and the frame is registered in full.
@@ -47,7 +48,8 @@ class TrackConfig:
     drop: float = 0.08  # a tracked score this far below the last full registration's loses the track
     floor: float = 0.2  # ... as does one below this
     views: tuple[str, ...] = ("normalised",)  # a tracked frame is aligned on these views only ...
-    polish: bool = True  # ... polished by DIS (a bend the alignment leaves), the winner re-aligned as usual
+    from_surface: bool = True  # ... from the last answer's smooth surface (its bend), not its homography ...
+    polish: bool = False  # ... and not polished by DIS (it only adds DIS's noise to a bend already in the start)
 
 
 class Tracker:
@@ -68,7 +70,8 @@ class Tracker:
         self.refiner = refiner or GeometricRefiner()
         self.config = config or TrackConfig()
         cfg = self.refiner.config
-        light = {"views": self.config.views, "polish": self.config.polish}
+        tc = self.config
+        light = {"views": tc.views, "polish": tc.polish, "from_surface": tc.from_surface}
         self.follow = GeometricRefiner(cfg.with_sections(align=light)) if cfg.align.direct else self.refiner
         self.counts = dict.fromkeys(STEPS, 0)
         self.last = ""

@@ -182,10 +182,16 @@ def align_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: s
     of DIS's residual on it (where the spline did not converge, e.g. a bend finer than its coarse grid,
     DIS measures what is left): on its own view, and the plain images' alignment also on the albedo view
     (the same images with the wall's reflectance divided out) when ``images.albedo`` is on. The
-    homography refitted to the alignment competes alone where it stands for it (:func:`plane_agrees`)."""
+    alignment starts from the start's homography, or, ``align.from_surface`` on, from its smooth surface
+    (:func:`smooth_rest` of the rest of its prior: a tracked frame's start is the last frame's answer,
+    whose bend carries over). The homography refitted to the alignment competes alone where it stands
+    for it (:func:`plane_agrees`)."""
     cfg, (h, w) = ctx.config, ctx.shape
     sf, fit = cfg.surface, cfg.fit
-    flow = bound_outside(aligned(ctx, view, homography_flow(start.H, h, w)), start.prior, ctx.support, sf.free_px)
+    begin = homography_flow(start.H, h, w)
+    if cfg.align.from_surface:
+        begin = begin + smooth_rest(ctx, start.prior - begin)
+    flow = bound_outside(aligned(ctx, view, begin), start.prior, ctx.support, sf.free_px)
     out = [Candidate(start.name, view, flow, aligned=True)]
     for on in (view, "albedo") if view == "plain" and cfg.images.albedo else (view,):
         if cfg.align.polish:  # the albedo view's warped image is the aligned candidate's own seen one
@@ -214,12 +220,9 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is None:
         return None
-    trust, sf, al = cfg.align.trust_px, cfg.surface, cfg.align
+    trust, sf = cfg.align.trust_px, cfg.surface
     plane = homography_flow(found[0], h, w)
-    smooth = fit_bspline(  # the winner's surface without DIS's noise finer than the fine grid
-        best.flow - plane, ctx.evidence, sf.detail_grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations, al.bend_start
-    )
-    flow = aligned(ctx, "normalised", plane + smooth)
+    flow = aligned(ctx, "normalised", plane + smooth_rest(ctx, best.flow - plane))
     near_data = near_data_ramp(ctx.evidence, sf.detail_grid, sf.detail_fade)  # as the detail level fades
     flow = best.flow + near_data[..., None] * (flow - best.flow)  # no change where the images carry no texture
     gap = flow_distance(flow, best.flow)[ctx.textured]
@@ -229,6 +232,13 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     if best.plane and ctx.score(again.key, flow) < ctx.score(best.key, best.flow) + cfg.selection.plane_margin:
         return None  # a plane that won alone gives way only by the margin it won by
     return again
+
+
+def smooth_rest(ctx: PairContext, rest: np.ndarray) -> np.ndarray:
+    """What a flow adds to its homography, ``rest`` ``(H, W, 2)``, as a P-spline on the fine grid with bend
+    ``align.bend_start``: its surface without noise finer than that grid, an alignment's start."""
+    sf, bend = ctx.config.surface, ctx.config.align.bend_start
+    return fit_bspline(rest, ctx.evidence, sf.detail_grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations, bend)
 
 
 def aligned(ctx: PairContext, view: str, start: np.ndarray) -> np.ndarray:

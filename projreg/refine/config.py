@@ -54,6 +54,8 @@ class AlignConfig:
     # every start and view follows only when it claims less than search.escalate_below of the texture
     views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct ...
     polish: bool = True  # ... each alignment also polished by the surface model of DIS's residual on it
+    from_surface: bool = False  # ... each from its start's smooth surface (homography + bend_start P-spline
+    # of the rest of its flow) instead of its homography: a tracked frame's, whose start is the last answer
     levels: tuple[int, ...] = (4, 2, 1)  # pyramid factors, coarsest first
     steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level
     max_step: float = 1.0  # the most one step moves a control value, in pixels of its level

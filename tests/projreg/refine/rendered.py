@@ -27,8 +27,9 @@ def coarse(s, rng):
 BEND_H = np.array([[0.93, 0.05, 12.0], [-0.03, 0.96, 8.0], [2e-4, -1e-4, 1.0]])
 
 
-def bent_pair(picture, amp=3.0, period=150.0, seed=0, wall=None):
-    """``(projected, captured, flow, valid)``: forward map ``q = H p`` then ``q + amp * sin(2 pi q / period)``;
+def bent_pair(picture, amp=3.0, period=150.0, seed=0, wall=None, homography=BEND_H):
+    """``(projected, captured, flow, valid)``: forward map ``q = H p`` (``homography``, the projector's
+    pose) then ``q + amp * sin(2 pi q / period)`` (the sheet's bend, fixed in the camera frame);
     ``wall``: the wall's reflectance in the camera frame, float ``(H, W)`` (None: uniform)."""
     h, w = picture.shape[:2]
     k = 2 * np.pi / period
@@ -38,12 +39,12 @@ def bent_pair(picture, amp=3.0, period=150.0, seed=0, wall=None):
     def bend(q):
         return q + amp * np.stack([np.sin(k * q[..., 1]), np.sin(k * q[..., 0])], axis=-1)
 
-    hp = np.concatenate([p, np.ones_like(x)[..., None]], axis=-1) @ BEND_H.T
+    hp = np.concatenate([p, np.ones_like(x)[..., None]], axis=-1) @ homography.T
     fwd = bend(hp[..., :2] / hp[..., 2:])
     q = p.copy()  # invert the bend at every camera pixel (a contraction: amp * k < 1)
     for _ in range(50):
         q = p - (bend(q) - q)
-    src = np.concatenate([q, np.ones_like(x)[..., None]], axis=-1) @ np.linalg.inv(BEND_H).T
+    src = np.concatenate([q, np.ones_like(x)[..., None]], axis=-1) @ np.linalg.inv(homography).T
     src = (src[..., :2] / src[..., 2:]).astype(np.float32)
     lit = (src[..., 0] >= 0) & (src[..., 0] <= w - 1) & (src[..., 1] >= 0) & (src[..., 1] <= h - 1)
     cap = cv2.remap(picture.astype(np.float32), src[..., 0], src[..., 1], cv2.INTER_LINEAR)
