@@ -13,8 +13,6 @@ import numpy as np
 from ..geometry.images import gaussian, ramp
 from .config import ConfidenceConfig
 
-SHRUNK_SIGMA = 6  # a neighbourhood of twice this sigma (px) or more is averaged on a grid shrunk to keep this one
-
 
 def pixel_confidence(
     texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float, cfg: ConfidenceConfig
@@ -45,8 +43,9 @@ def pixel_confidence(
     """
     passed = pass_marks(ncc, residual, spread, cfg)
     w = np.asarray(texture, np.float32)
-    fine = neighbourhood(w, passed, radius, cfg.sparse, cfg.dense)
-    return np.maximum(fine, neighbourhood(w, passed, 2 * radius, cfg.coarse_sparse, cfg.dense)).astype(np.float32)
+    fine = neighbourhood(w, passed, radius, cfg.sparse, cfg.dense, cfg.shrunk_sigma)
+    coarse = neighbourhood(w, passed, 2 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
+    return np.maximum(fine, coarse).astype(np.float32)
 
 
 def gap_confidence(
@@ -60,7 +59,8 @@ def gap_confidence(
     (docs/model.md, "The bridge").
     """
     passed = pass_marks(ncc, residual, spread, cfg)
-    return neighbourhood(np.asarray(texture, np.float32), passed, 4 * radius, cfg.coarse_sparse, cfg.dense)
+    texture = np.asarray(texture, np.float32)
+    return neighbourhood(texture, passed, 4 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
 
 
 def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
@@ -76,15 +76,16 @@ def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, cfg: C
 
 
 def neighbourhood(
-    texture: np.ndarray, passed: np.ndarray, sigma: float, sparse: float, dense: float = 0.2
+    texture: np.ndarray, passed: np.ndarray, sigma: float, sparse: float, dense: float = 0.2, shrunk: float = 6.0
 ) -> np.ndarray:
     """The ``passed`` marks (float ``(H, W)`` in [0, 1]) averaged around every pixel by a normalised
     convolution weighted by ``texture`` (Gaussian, ``sigma`` px), times how much texture the window
     holds: 0 at a density <= ``sparse``, 1 at >= ``dense``.
 
-    A sigma of twice ``SHRUNK_SIGMA`` px or more is applied on the grid shrunk ``sigma // SHRUNK_SIGMA``
-    times (area averages) and the result brought back bilinearly: the map is smooth at that scale, and
-    a full-size Gaussian that wide costs 5-25 ms on a 384 x 512 pair (seconds on a 1080 x 1920 one).
+    A sigma of twice ``shrunk`` px (``confidence.shrunk_sigma``) or more is applied on the grid shrunk
+    ``sigma // shrunk`` times (area averages) and the result brought back bilinearly: the map is smooth at
+    that scale, and a full-size Gaussian that wide costs 5-25 ms on a 384 x 512 pair (seconds on a
+    1080 x 1920 one).
 
     Example:
         >>> w = np.zeros((40, 40), np.float32); w[:, :20] = 1.0
@@ -93,7 +94,7 @@ def neighbourhood(
         (1.0, 0.0)
     """
     h, w = texture.shape
-    shrink = max(1, int(sigma // SHRUNK_SIGMA))
+    shrink = max(1, int(sigma // shrunk))
     small = (max(1, w // shrink), max(1, h // shrink))
     weights = [texture, texture * passed]
     if shrink > 1:

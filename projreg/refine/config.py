@@ -124,6 +124,9 @@ class ConfidenceConfig:
     spread_fail_px: float = 4.0  # ... and at or above which it fails
     rival_margin: float = 0.05  # a candidate scoring within this of the winner is a rival
     radius: float = 0.03  # fine neighbourhood (share of the longer side) the pass marks are averaged over
+    shrunk_sigma: float = (
+        6.0  # a neighbourhood of twice this sigma (px) or more is averaged on a grid shrunk to keep this one
+    )
     sparse: float = 0.05  # texture density at which the fine neighbourhood starts to count
     coarse_sparse: float = 0.1  # ... the coarse one (twice the radius) and the bridge's (four times)
     dense: float = 0.2  # texture density at which a neighbourhood counts fully
@@ -133,6 +136,7 @@ class ConfidenceConfig:
     coarse_peak: float = 0.93  # ... in the larger windows
     periodic_tiles: tuple[int, ...] = (64, 128, 256)  # the periodicity test's windows (px), finest first
     periodic_lobe: float = 0.3  # autocorrelation level that bounds its central lobe (an edge's ridge)
+    periodic_overlap: float = 0.25  # shifts whose windows overlap less than this share of a window say nothing
     repeating_share: float = 0.5  # an unverified pair whose texture repeats this much is called a repeating pattern
     bridge: bool = True  # a registered answer also claims wide flat gaps where two models agree
     bridge_px: float = 1.0  # ... within this distance of its claimed pixels' homography
@@ -170,6 +174,7 @@ class RefineConfig:
             "selection.ncc_sigma": self.selection.ncc_sigma,
             "images.contrast_sigma": im.contrast_sigma,
             "confidence.radius": self.confidence.radius,
+            "confidence.shrunk_sigma": self.confidence.shrunk_sigma,
             "align.trust_px": al.trust_px,
             "align.max_step": al.max_step,
         }

@@ -43,10 +43,11 @@ def repeating(
     coarse_peak: float = 0.93,
     tiles: tuple[int, ...] = (64, 128, 256),
     lobe: float = 0.3,
+    overlap: float = 0.25,
 ) -> np.ndarray:
     """Pixels where the image repeats itself, bool ``(H, W)``: :func:`periodicity` at least ``fine_peak``
-    in the first of ``tiles`` (px) or ``coarse_peak`` in the others (those that fit the image); ``lobe``:
-    :func:`periodicity`'s.
+    in the first of ``tiles`` (px) or ``coarse_peak`` in the others (those that fit the image); ``lobe``
+    and ``overlap``: :func:`periodicity`'s.
 
     The coarse windows ask for a closer repeat: a photograph of a regular thing (a brick wall) scores
     0.83-0.91 there, from its courses, while its detail differs from one brick to the next, which the
@@ -54,7 +55,7 @@ def repeating(
     out = np.zeros(gray.shape, bool)
     for i, tile in enumerate(tiles):
         if min(gray.shape) >= tile:  # a smaller image: no such window
-            out |= periodicity(gray, tile, lobe) >= (coarse_peak if i else fine_peak)
+            out |= periodicity(gray, tile, lobe, overlap) >= (coarse_peak if i else fine_peak)
     return out
 
 

@@ -173,7 +173,8 @@ class GeometricRefiner:
         second adds the DIS-refined candidates of every start and view."""
         cfg, conf_cfg = self.config, self.config.confidence
         measure = conf_cfg.periodic and ctx.side.repeats is None  # once per projected image ...
-        periodic = (conf_cfg.periodic_peak, conf_cfg.coarse_peak, conf_cfg.periodic_tiles, conf_cfg.periodic_lobe)
+        periodic = (conf_cfg.periodic_peak, conf_cfg.coarse_peak, conf_cfg.periodic_tiles)
+        periodic += (conf_cfg.periodic_lobe, conf_cfg.periodic_overlap)
         pool = self._pool()  # ... on the pool while the first stage refines
         pending = pool.submit(repeating, ctx.normalised[0], *periodic) if measure and pool is not None else None
         network, first, usable = network_starts(ctx, flow)
