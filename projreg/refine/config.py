@@ -124,9 +124,7 @@ class ConfidenceConfig:
     spread_fail_px: float = 4.0  # ... and at or above which it fails
     rival_margin: float = 0.05  # a candidate scoring within this of the winner is a rival
     radius: float = 0.03  # fine neighbourhood (share of the longer side) the pass marks are averaged over
-    shrunk_sigma: float = (
-        6.0  # a neighbourhood of twice this sigma (px) or more is averaged on a grid shrunk to keep this one
-    )
+    shrunk_sigma: float = 6.0  # a neighbourhood of sigma >= twice this (px) is averaged on a grid shrunk to keep it
     sparse: float = 0.05  # texture density at which the fine neighbourhood starts to count
     coarse_sparse: float = 0.1  # ... the coarse one (twice the radius) and the bridge's (four times)
     dense: float = 0.2  # texture density at which a neighbourhood counts fully
