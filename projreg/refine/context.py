@@ -8,6 +8,7 @@ projected -> captured, pixels.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -29,6 +30,7 @@ from ..prediction import CONFIDENT
 from .config import RefineConfig
 
 VIEWS = ("normalised", "plain", "albedo")  # the gray images a residual is measured on
+DisFlows = Callable[[list[tuple[np.ndarray, np.ndarray]]], list[np.ndarray]]  # DIS's flow of each image pair
 
 
 def flow_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -218,14 +220,14 @@ class PairContext:
         seen = self.textured & lands_inside(flow, self.shape)
         return float((conf[seen] >= CONFIDENT).mean()) if seen.any() else 0.0
 
-    def round_trip(self, dis: cv2.DISOpticalFlow, key: str, flow: np.ndarray) -> np.ndarray:
+    def round_trip(self, dis: DisFlows, key: str, flow: np.ndarray) -> np.ndarray:
         """Forward-backward residual (px, ``(H, W)``) between the projected image and the captured one
-        warped back by ``flow``: what DIS still finds to move either way round; ~0 where the flow holds."""
+        warped back by ``flow``: what DIS still finds to move either way round; ~0 where the flow holds.
+        ``dis``: DIS's flows of a list of image pairs (both ways at once where it has two threads)."""
         memo_key = f"residual:{key}"
         if memo_key not in self.memo:
             gray0, warped = self.normalised[0], self.seen(key, flow)
-            fwd = dis.calc(gray0, warped, None)
-            bwd = dis.calc(warped, gray0, None)
+            fwd, bwd = dis([(gray0, warped), (warped, gray0)])
             zero = np.zeros_like(fwd)
             self.memo[memo_key] = np.maximum(flow_distance(fwd, zero), flow_distance(compose(bwd, fwd), zero))
         return self.memo[memo_key]

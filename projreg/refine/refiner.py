@@ -45,7 +45,7 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import cv2
@@ -88,6 +88,9 @@ class Search:
     repeats: np.ndarray | None = None
     best: Candidate | None = None
     conf: np.ndarray | None = None
+
+
+POOL_NAME = "refine"  # the prefix of the refinement pool's thread names
 
 
 class GeometricRefiner:
@@ -198,10 +201,14 @@ class GeometricRefiner:
             if finer is not None:  # the network's finer flow: a better start for the search, on every view
                 search.network, first, usable = network_starts(ctx, resize_flow(finer(), (*ctx.shape, 2)))
                 rest = views
-            second = self._second_starts(ctx, projected, captured, usable) if more else []
+            # SIFT's start is found on the pool while the finer start's views are refined beside it
+            pool = self._pool()
+            found = pool.submit(self._second_starts, ctx, projected, captured, usable) if more and pool else None
+            refining = self._submit(ctx, first, rest)
+            second = found.result() if found else self._second_starts(ctx, projected, captured, usable) if more else []
             if direct:  # an aligned answer that did not verify the frame is not kept as a rival of DIS's
                 search.cands, direct = [], False
-            search.cands += self._stage(ctx, first, rest) + self._stage(ctx, second, views)
+            search.cands += self._gather(ctx, first, refining) + self._stage(ctx, second, views)
             search.stages.append("more starts")
             self._reselect(search)
         # an aligned first stage that verified what ``settle_at`` asks: nothing left to grow or re-align
@@ -273,7 +280,7 @@ class GeometricRefiner:
         """Candidate ``best``'s check maps, float32 ``(H, W)`` each: local NCC, forward-backward residual
         (px) and the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
         ncc = ctx.ncc(best.key, best.flow)
-        residual = ctx.round_trip(self._dis(), best.key, best.flow)
+        residual = ctx.round_trip(self._dis_flows, best.key, best.flow)
         return ncc, residual, ambiguity(ctx, cands, scores, best, ncc, self.config.confidence.rival_margin)
 
     def bridged(
@@ -313,9 +320,21 @@ class GeometricRefiner:
         """Every start refined on each of ``views`` (the albedo view from the network's and SIFT's starts only),
         side by side on the pool, in a fixed order: the refined candidates (views, then starts), then the
         planes in the same order, then SIFT's homography alone; each scored."""
+        return self._gather(ctx, starts, self._submit(ctx, starts, views, direct))
+
+    def _submit(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list:
+        """:meth:`_stage`'s refinements, submitted to the pool (done here without one): a future or the
+        candidates of each job, in :meth:`_stage`'s order."""
         jobs = [(s, view) for view in views for s in starts if s.H is not None]
         jobs = [(s, view) for s, view in jobs if not (view == "albedo" and s.name == "identity")]
-        done = self._map(lambda job: self._refine_scored(ctx, *job, direct), jobs)
+        pool = self._pool()
+        if pool is None or len(jobs) < 2:
+            return [self._refine_scored(ctx, *job, direct) for job in jobs]
+        return [pool.submit(self._refine_scored, ctx, *job, direct) for job in jobs]
+
+    def _gather(self, ctx: PairContext, starts: list[Start], submitted: list) -> list[Candidate]:
+        """:meth:`_stage`'s candidates from what :meth:`_submit` returned for ``starts``."""
+        done = [job.result() if isinstance(job, Future) else job for job in submitted]
         out = [c for group in done for c in group if not c.plane] + [c for group in done for c in group if c.plane]
         for s in starts:
             if s.name == "sift":
@@ -354,14 +373,8 @@ class GeometricRefiner:
             return None
         pid = os.getpid()
         if pid not in self._pools:
-            self._pools = {pid: ThreadPoolExecutor(workers, thread_name_prefix="refine")}
+            self._pools = {pid: ThreadPoolExecutor(workers, thread_name_prefix=POOL_NAME)}
         return self._pools[pid]
-
-    def _map(self, fn, items: list) -> list:
-        pool = self._pool()
-        if pool is None or len(items) < 2:
-            return [fn(item) for item in items]
-        return list(pool.map(fn, items))
 
     def _projected(self, projected: np.ndarray) -> Projected:
         """The projected side of ``projected`` (:class:`~projreg.refine.context.Projected`): the last one
@@ -369,6 +382,13 @@ class GeometricRefiner:
         if self._side is None or not self._side.matches(projected):
             self._side = Projected.build(projected, self.config)
         return self._side
+
+    def _dis_flows(self, pairs: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+        """DIS's flow of each image pair: side by side on the pool when called from outside it."""
+        pool = self._pool()
+        if pool is None or len(pairs) < 2 or threading.current_thread().name.startswith(POOL_NAME):
+            return [self._dis().calc(a, b, None) for a, b in pairs]
+        return list(pool.map(lambda pair: self._dis().calc(*pair, None), pairs))
 
     def _dis(self) -> cv2.DISOpticalFlow:
         dis = getattr(self._local, "dis", None)
