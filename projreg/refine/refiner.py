@@ -42,10 +42,8 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 
 from __future__ import annotations
 
-import os
-import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import cv2
@@ -73,6 +71,7 @@ from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected, flow_distance
 from .evidence import repeating, unverified
 from .selection import ambiguity, select
+from .workers import Workers
 
 
 @dataclass
@@ -90,9 +89,6 @@ class Search:
     conf: np.ndarray | None = None
 
 
-POOL_NAME = "refine"  # the prefix of the refinement pool's thread names
-
-
 class GeometricRefiner:
     """Refines network flows (module docstring); one refiner may serve one thread at a time.
 
@@ -100,9 +96,8 @@ class GeometricRefiner:
 
     def __init__(self, config: RefineConfig | None = None) -> None:
         self.config = config or QUALITIES[DEFAULT_QUALITY].refine
-        self._local = threading.local()  # each thread's own DIS instance
         self._sift = SiftHomography() if self.config.search.sift else None
-        self._pools: dict[int, ThreadPoolExecutor] = {}  # by process: a forked child starts its own threads
+        self._workers = Workers(self.config.search.workers)
         self._side: Projected | None = None  # the last projected image's side, reused while it repeats
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
@@ -178,8 +173,8 @@ class GeometricRefiner:
         measure = conf_cfg.periodic and ctx.side.repeats is None  # once per projected image ...
         periodic = (conf_cfg.periodic_peak, conf_cfg.coarse_peak, conf_cfg.periodic_tiles)
         periodic += (conf_cfg.periodic_lobe, conf_cfg.periodic_overlap)
-        pool = self._pool()  # ... on the pool while the first stage refines
-        pending = pool.submit(repeating, ctx.normalised[0], *periodic) if measure and pool is not None else None
+        # ... on the pool, beside the first stage
+        pending = self._workers.submit(repeating, ctx.normalised[0], *periodic) if measure else None
         network, first, usable = network_starts(ctx, flow)
         views, direct = list(ctx.views()), cfg.align.direct
         first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
@@ -192,7 +187,7 @@ class GeometricRefiner:
             cands, stages = self._stage(ctx, first, first_views, direct), ["network"]
         search = Search(ctx, network, cands, {}, stages)
         if measure:
-            ctx.side.repeats = pending.result() if pending is not None else repeating(ctx.normalised[0], *periodic)
+            ctx.side.repeats = pending.result()
         search.repeats = ctx.side.repeats
         self._reselect(search)
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
@@ -202,10 +197,9 @@ class GeometricRefiner:
                 search.network, first, usable = network_starts(ctx, resize_flow(finer(), (*ctx.shape, 2)))
                 rest = views
             # SIFT's start is found on the pool while the finer start's views are refined beside it
-            pool = self._pool()
-            found = pool.submit(self._second_starts, ctx, projected, captured, usable) if more and pool else None
+            found = self._workers.submit(self._second_starts, ctx, projected, captured, usable) if more else None
             refining = self._submit(ctx, first, rest)
-            second = found.result() if found else self._second_starts(ctx, projected, captured, usable) if more else []
+            second = found.result() if found else []
             if direct:  # an aligned answer that did not verify the frame is not kept as a rival of DIS's
                 search.cands, direct = [], False
             search.cands += self._gather(ctx, first, refining) + self._stage(ctx, second, views)
@@ -280,7 +274,7 @@ class GeometricRefiner:
         """Candidate ``best``'s check maps, float32 ``(H, W)`` each: local NCC, forward-backward residual
         (px) and the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
         ncc = ctx.ncc(best.key, best.flow)
-        residual = ctx.round_trip(self._dis_flows, best.key, best.flow)
+        residual = ctx.round_trip(self._workers.dis_flows, best.key, best.flow)
         return ncc, residual, ambiguity(ctx, cands, scores, best, ncc, self.config.confidence.rival_margin)
 
     def bridged(
@@ -322,19 +316,15 @@ class GeometricRefiner:
         planes in the same order, then SIFT's homography alone; each scored."""
         return self._gather(ctx, starts, self._submit(ctx, starts, views, direct))
 
-    def _submit(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list:
-        """:meth:`_stage`'s refinements, submitted to the pool (done here without one): a future or the
-        candidates of each job, in :meth:`_stage`'s order."""
+    def _submit(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list[Future]:
+        """:meth:`_stage`'s refinements, submitted to the pool, in :meth:`_stage`'s order."""
         jobs = [(s, view) for view in views for s in starts if s.H is not None]
         jobs = [(s, view) for s, view in jobs if not (view == "albedo" and s.name == "identity")]
-        pool = self._pool()
-        if pool is None or len(jobs) < 2:
-            return [self._refine_scored(ctx, *job, direct) for job in jobs]
-        return [pool.submit(self._refine_scored, ctx, *job, direct) for job in jobs]
+        return [self._workers.submit(self._refine_scored, ctx, *job, direct) for job in jobs]
 
-    def _gather(self, ctx: PairContext, starts: list[Start], submitted: list) -> list[Candidate]:
+    def _gather(self, ctx: PairContext, starts: list[Start], submitted: list[Future]) -> list[Candidate]:
         """:meth:`_stage`'s candidates from what :meth:`_submit` returned for ``starts``."""
-        done = [job.result() if isinstance(job, Future) else job for job in submitted]
+        done = [job.result() for job in submitted]
         out = [c for group in done for c in group if not c.plane] + [c for group in done for c in group if c.plane]
         for s in starts:
             if s.name == "sift":
@@ -344,7 +334,7 @@ class GeometricRefiner:
         return out
 
     def _refine_scored(self, ctx: PairContext, start: Start, view: str, direct: bool) -> list[Candidate]:
-        cands = align_start(ctx, self._dis(), start, view) if direct else refine_start(ctx, self._dis(), start, view)
+        cands = (align_start if direct else refine_start)(ctx, self._workers.dis(), start, view)
         for c in cands:
             ctx.ncc(c.key, c.flow)  # the score's map, computed on this thread
         return cands
@@ -366,35 +356,12 @@ class GeometricRefiner:
         search.best = select(search.cands, scores, self.config.selection.plane_margin)
         search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
 
-    def _pool(self) -> ThreadPoolExecutor | None:
-        """This process's pool of ``search.workers`` threads (None for one worker)."""
-        workers = self.config.search.workers
-        if workers < 2:
-            return None
-        pid = os.getpid()
-        if pid not in self._pools:
-            self._pools = {pid: ThreadPoolExecutor(workers, thread_name_prefix=POOL_NAME)}
-        return self._pools[pid]
-
     def _projected(self, projected: np.ndarray) -> Projected:
         """The projected side of ``projected`` (:class:`~projreg.refine.context.Projected`): the last one
         when it is the same image (a tracked sequence, a folder of captures of one picture), else built."""
         if self._side is None or not self._side.matches(projected):
             self._side = Projected.build(projected, self.config)
         return self._side
-
-    def _dis_flows(self, pairs: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-        """DIS's flow of each image pair: side by side on the pool when called from outside it."""
-        pool = self._pool()
-        if pool is None or len(pairs) < 2 or threading.current_thread().name.startswith(POOL_NAME):
-            return [self._dis().calc(a, b, None) for a, b in pairs]
-        return list(pool.map(lambda pair: self._dis().calc(*pair, None), pairs))
-
-    def _dis(self) -> cv2.DISOpticalFlow:
-        dis = getattr(self._local, "dis", None)
-        if dis is None:
-            dis = self._local.dis = cv2.DISOpticalFlow_create(cv2.DISOpticalFlow_PRESET_MEDIUM)
-        return dis
 
     def _predict_shrunk(
         self,
