@@ -37,6 +37,14 @@ def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:
     return flow
 
 
+def rescaled(H: np.ndarray, shape: tuple[int, ...], to: tuple[int, ...]) -> np.ndarray:
+    """A homography between frames of ``shape[:2]`` (both sides) as one between the same frames resized to
+    ``to[:2]`` (pixel centres kept: ``x' = (x + 0.5) w' / w - 0.5``)."""
+    (h, w), (h2, w2) = shape[:2], to[:2]
+    S = np.array([[w2 / w, 0, 0.5 * w2 / w - 0.5], [0, h2 / h, 0.5 * h2 / h - 0.5], [0, 0, 1]])  # shape -> to
+    return S @ np.asarray(H, np.float64) @ np.linalg.inv(S)
+
+
 def fit_step(h: int, w: int, points: int) -> int:
     """Grid step (>= 1 px) that leaves about ``points`` correspondences on an ``h x w`` frame."""
     return max(1, math.ceil(math.sqrt(h * w / points)))

@@ -16,7 +16,14 @@ import numpy as np
 
 from ..geometry.align import align
 from ..geometry.frames import shrink
-from ..geometry.homography import SiftHomography, area_ratio, fit_affine, fit_homography, homography_flow
+from ..geometry.homography import (
+    SiftHomography,
+    area_ratio,
+    fit_affine,
+    fit_homography,
+    homography_flow,
+    rescaled,
+)
 from ..geometry.images import to_gray
 from ..geometry.splines import fit_bspline, fit_detail, near_data_ramp
 from ..geometry.warp import compose
@@ -126,9 +133,7 @@ def sift_start(ctx: PairContext, sift: SiftHomography, projected: np.ndarray, ca
     H, status, _ = sift(gray0, gray1)
     if status != "ok":
         return None
-    (h, w), (hs, ws) = ctx.shape, gray0.shape
-    S = np.array([[ws / w, 0, 0.5 * ws / w - 0.5], [0, hs / h, 0.5 * hs / h - 0.5], [0, 0, 1]])  # full -> small
-    H = np.linalg.inv(S) @ H @ S
+    H = rescaled(H, gray0.shape, ctx.shape)
     fit = ctx.config.fit
     flow = homography_flow(H, *ctx.shape)
     found = fit_homography(flow, ctx.step, fit.ransac_px, None, fit.max_area_ratio, fit.min_hull)

@@ -20,7 +20,8 @@ MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returne
 class ImagesConfig:
     """The views of the pair the residuals are measured on and the evidence read from them."""
 
-    max_side: int | None = None  # refine the pair shrunk to this longer side (None: its own size)
+    max_side: int | None = None  # refine the pair shrunk to this longer side (None: its own size) ...
+    verify_full: bool = False  # ... and verify the answer at the pair's own size (else: its confidence resized)
     contrast_sigma: float = 8.0  # Gaussian window (px) of the local contrast normalisation
     plain: bool = True  # also measure residuals on the gray images without normalisation
     albedo: bool = True  # also measure them with the wall's reflectance divided out (divide_albedo)
@@ -220,14 +221,18 @@ class Quality:
 
 # ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and
 # the plain images and polished by DIS (the plain alignment also on the albedo view); where that leaves
-# more than 15 % of the visible texture unverified, the network again at up to 1024 px and ``accurate``'s
-# search from it. ``accurate``: every start on every view, the network at up to 1024 px, the winner
-# re-aligned directly. ``fast``: the network's start aligned directly to the normalised images
-# at 256 px (no DIS), the fit's pixel parameters halved, no detail level, periodicity test, albedo view or
-# bridge. Their figures: docs/results.md.
+# more than 15 % of the visible texture unverified, the network again at up to 512 px and ``accurate``'s
+# search from it; a pair larger than 512 px is searched shrunk to 512 px and its answer verified at its
+# own size (the estimator's cost grows with the pixels, the network's with their square).
+# ``accurate``: every start on every view, the network at up to 1024 px, the winner re-aligned
+# directly. ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
+# the fit's pixel parameters halved, no detail level, periodicity test, albedo view or bridge. Their
+# figures: docs/results.md.
 ACCURATE = RefineConfig()
 BALANCED = ACCURATE.with_sections(
-    align={"direct": True, "views": ("normalised", "plain")}, search={"escalate_below": 0.85, "settle_at": 0.85}
+    images={"max_side": 512, "verify_full": True},
+    align={"direct": True, "views": ("normalised", "plain")},
+    search={"escalate_below": 0.85, "settle_at": 0.85},
 )
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),
@@ -246,8 +251,9 @@ QUALITIES = {
             "balanced",
             256,
             BALANCED,
-            "the network at 256 px aligned directly; where that leaves the frame unverified, accurate's search",
-            escalate_side=1024,
+            "the network at 256 px aligned directly; where that leaves the frame unverified, accurate's search; "
+            "searched at up to 512 px, verified at the pair's size",
+            escalate_side=512,
         ),
         Quality("accurate", 1024, ACCURATE, "the network at up to 1024 px, every start on every view, re-aligned"),
     )

@@ -18,7 +18,7 @@ reads as the algorithm:
 4. **Score and select** (:mod:`~projreg.refine.selection`): texture-weighted mean local NCC of the
    projected image and the captured image warped back; the best wins, unless a homography alone scores
    within ``plane_margin`` of it.
-5. **Verify** (:mod:`~projreg.refine.confidence`): per-pixel checks (local NCC, forward-backward
+5. **Verify** (:mod:`~projreg.refine.verify`): per-pixel checks (local NCC, forward-backward
    residual, rivals that explain the images as well), spread over the texture's neighbourhood; pixels
    where the projected image repeats itself are never claimed.
 6. **Escalate**: when the network's answer claims less than ``escalate_below`` of the textured pixels
@@ -51,8 +51,9 @@ import numpy as np
 
 from ..errors import ProjregError
 from ..geometry.frames import resize_flow, shrink
-from ..geometry.homography import SiftHomography, fit_homography, homography_flow
+from ..geometry.homography import SiftHomography, homography_flow, rescaled
 from ..prediction import CONFIDENT, Prediction
+from . import verify
 from .candidates import (
     Candidate,
     RefineInfo,
@@ -66,11 +67,10 @@ from .candidates import (
     sift_plane,
     sift_start,
 )
-from .confidence import gap_confidence, pixel_confidence
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
-from .context import PairContext, Projected, flow_distance
+from .context import PairContext, Projected
 from .evidence import repeating, unverified
-from .selection import ambiguity, select
+from .selection import select
 from .workers import Workers
 
 
@@ -98,7 +98,8 @@ class GeometricRefiner:
         self.config = config or QUALITIES[DEFAULT_QUALITY].refine
         self._sift = SiftHomography() if self.config.search.sift else None
         self._workers = Workers(self.config.search.workers)
-        self._side: Projected | None = None  # the last projected image's side, reused while it repeats
+        self._sides: dict[tuple[int, ...], Projected] = {}  # the last projected image's side, by size (the pair's
+        # own and shrunk): reused while it repeats
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
         """The refined flow of one pair and what was chosen (:meth:`predict_info` without the verdict)."""
@@ -241,7 +242,7 @@ class GeometricRefiner:
         registered = claimed.mean() >= cfg.registered_above
         why = "" if registered else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
-            conf = self.bridged(ctx, conf, best, search.cands, scores, search.repeats)
+            conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers.dis_flows)
             claimed = conf >= CONFIDENT
             search.stages.append("bridge")
         if why and search.network.H is not None:
@@ -262,47 +263,8 @@ class GeometricRefiner:
         best: Candidate,
         repeats: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Per-pixel confidence in [0, 1] of candidate ``best``
-        (:func:`~projreg.refine.confidence.pixel_confidence`); 0 where the image repeats itself."""
-        radius = self.config.confidence.radius * max(ctx.shape)
-        conf = pixel_confidence(ctx.evidence, *self.checks(ctx, cands, scores, best), radius, self.config.confidence)
-        return conf if repeats is None else np.where(repeats, 0.0, conf).astype(np.float32)
-
-    def checks(
-        self, ctx: PairContext, cands: list[Candidate], scores: dict[str, float], best: Candidate
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Candidate ``best``'s check maps, float32 ``(H, W)`` each: local NCC, forward-backward residual
-        (px) and the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
-        ncc = ctx.ncc(best.key, best.flow)
-        residual = ctx.round_trip(self._workers.dis_flows, best.key, best.flow)
-        return ncc, residual, ambiguity(ctx, cands, scores, best, ncc, self.config.confidence.rival_margin)
-
-    def bridged(
-        self,
-        ctx: PairContext,
-        conf: np.ndarray,
-        best: Candidate,
-        cands: list[Candidate],
-        scores: dict[str, float],
-        repeats: np.ndarray | None,
-    ) -> np.ndarray:
-        """``conf`` raised to the checks averaged across wide flat gaps
-        (:func:`~projreg.refine.confidence.gap_confidence`) where ``best`` stays within ``bridge_px`` of the
-        homography fitted to it on its claimed pixels; ``conf`` itself when that fit fails.
-
-        In a flat gap the answer is the surface model's interpolation; where the plane of the verified
-        region says the same, two models of the gap agree and the gap is claimed."""
-        cfg, (h, w) = self.config, ctx.shape
-        fit = cfg.fit
-        found = fit_homography(best.flow, ctx.step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull)
-        if found is None:
-            return conf
-        radius = cfg.confidence.radius * max(h, w)
-        gap = gap_confidence(ctx.evidence, *self.checks(ctx, cands, scores, best), radius, cfg.confidence)
-        if repeats is not None:
-            gap = np.where(repeats, 0.0, gap)
-        agree = flow_distance(best.flow, homography_flow(found[0], h, w)) < cfg.confidence.bridge_px
-        return np.where(agree, np.maximum(conf, gap), conf).astype(np.float32)
+        """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`~projreg.refine.verify.confidence`)."""
+        return verify.confidence(ctx, cands, scores, best, repeats, self._workers.dis_flows)
 
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
         """The selection score of ``flow`` on a pair of uint8 RGB images, as :meth:`predict_info` scores its
@@ -359,9 +321,10 @@ class GeometricRefiner:
     def _projected(self, projected: np.ndarray) -> Projected:
         """The projected side of ``projected`` (:class:`~projreg.refine.context.Projected`): the last one
         when it is the same image (a tracked sequence, a folder of captures of one picture), else built."""
-        if self._side is None or not self._side.matches(projected):
-            self._side = Projected.build(projected, self.config)
-        return self._side
+        side = self._sides.get(projected.shape)
+        if side is None or not side.matches(projected):
+            side = self._sides[projected.shape] = Projected.build(projected, self.config)
+        return side
 
     def _predict_shrunk(
         self,
@@ -376,9 +339,30 @@ class GeometricRefiner:
         side = self.config.images.max_side
         small0, small1 = shrink(projected, side), shrink(captured, side)
         smaller = None if finer is None else lambda: resize_flow(finer(), small0.shape)
+        if self.config.images.verify_full and min(small0.shape[:2]) >= MIN_SIDE:
+            ctx = PairContext.build(small0, small1, self.config, self._projected(small0))
+            if ctx.share >= self.config.images.textureless_below:
+                search = self._search(ctx, small0, small1, resize_flow(flow, small0.shape), identity, smaller)
+                return self._verdict(self._at_full_size(search, projected, captured))
         pred, info = self.predict_info(small0, small1, resize_flow(flow, small0.shape), identity, smaller)
         h, w = projected.shape[:2]
         conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
         claimed = (conf >= CONFIDENT) if pred.registered else np.zeros((h, w), bool)
         pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed)
         return pred, replace(info, confidence=conf)
+
+    def _at_full_size(self, search: Search, projected: np.ndarray, captured: np.ndarray) -> Search:
+        """A search made on the pair shrunk, brought to the pair's own size: its candidates' flows resized,
+        their scores kept, the winner verified again there (the local checks at full resolution)."""
+        shape = projected.shape
+        ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
+        cands = [replace(c, flow=resize_flow(c.flow, shape)) for c in search.cands]
+        best = cands[[c.key for c in search.cands].index(search.best.key)]
+        H = None if search.network.H is None else rescaled(search.network.H, search.ctx.shape, shape)
+        network = Start(search.network.name, H, resize_flow(search.network.prior, shape))
+        repeats = search.repeats
+        if repeats is not None:
+            repeats = cv2.resize(repeats.astype(np.uint8), shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0
+        out = Search(ctx, network, cands, dict(search.scores), search.stages + ["full size"], repeats, best)
+        out.conf = self.confidence(ctx, cands, out.scores, best, repeats)
+        return out

@@ -418,7 +418,7 @@ def test_bench_takes_a_batch_size(tiny_train, tiny_ckpt, tmp_path):
 
 def test_the_default_model_row_escalates_to_the_network_at_its_full_side(monkeypatch, tiny_val):
     """``bench``'s default row is what ``predict`` runs: the network at 256 px, and on a pair the first
-    stage leaves unverified (here: the camera saw black) the network again at 1024 px at most."""
+    stage leaves unverified (here: the camera saw black) the network again at 512 px at most."""
     from projreg.model.checkpoint import reference_checkpoint
     from projreg.refine.config import DEFAULT_QUALITY, QUALITIES
 
@@ -438,4 +438,4 @@ def test_the_default_model_row_escalates_to_the_network_at_its_full_side(monkeyp
     finally:
         reader.close()
     pred = as_prediction(method.predict(s["projected"], np.zeros_like(s["captured"])))
-    assert asked == [QUALITIES[DEFAULT_QUALITY].escalate_side] == [1024] and not pred.registered
+    assert asked == [QUALITIES[DEFAULT_QUALITY].escalate_side] == [512] and not pred.registered

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from projreg.geometry.homography import area_ratio, fit_affine, fit_homography, homography_flow
+from projreg.geometry.homography import area_ratio, fit_affine, fit_homography, homography_flow, rescaled
 from projreg.geometry.warp import compose
 
 H_TRUE = np.array([[1.02, 0.03, 4.0], [-0.02, 0.98, -3.0], [1e-4, -5e-5, 1.0]])
@@ -73,3 +73,16 @@ def test_homography_flow_is_the_projective_map_minus_the_pixel():
     for x, y in ((0, 0), (39, 0), (17, 23), (39, 29)):
         q = H_TRUE @ [x, y, 1.0]
         np.testing.assert_allclose(flow[y, x], q[:2] / q[2] - [x, y], atol=1e-4)
+
+
+def test_a_homography_rescaled_maps_the_resized_frames_pixel_centres():
+    """A map between two 600 x 800 frames, as one between the same frames at 384 x 512: the shrunk flow
+    of its flow (pixel centres kept, the vectors scaled); and back again."""
+    from projreg.geometry.frames import resize_flow
+
+    H = np.array([[0.93, 0.05, 12.0], [-0.03, 0.96, 8.0], [2e-4, -1e-4, 1.0]])
+    small = rescaled(H, (600, 800), (384, 512))
+    expected = resize_flow(homography_flow(H, 600, 800), (384, 512))
+    inner = (slice(2, -2), slice(2, -2))  # the resized flow's border averages fewer pixels
+    assert np.abs(homography_flow(small, 384, 512)[inner] - expected[inner]).max() < 0.01
+    assert np.allclose(rescaled(small, (384, 512), (600, 800)), H)

@@ -35,12 +35,13 @@ def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
     assert ACCURATE == RefineConfig()  # the field defaults are the full search
     sides = [q.network_side for q in QUALITIES.values()]
     assert sides == sorted(sides)
-    assert FAST.images.max_side is not None and BALANCED.images.max_side is None  # only fast shrinks the pair
+    assert ACCURATE.images.max_side is None  # only accurate searches every pair at its own size ...
+    assert FAST.images.max_side < BALANCED.images.max_side and BALANCED.images.verify_full  # ... balanced verifies there
     assert not FAST.search.identity and not FAST.search.sift
     assert BALANCED.search.escalate_below < 1 <= ACCURATE.search.escalate_below and BALANCED.align.direct
-    balanced = QUALITIES["balanced"]  # the network at 256 px first, at up to 1024 where the search escalates
-    assert balanced.finer_side(1024) == 1024 and balanced.finer_side(200) is None and balanced.finer_side(512) == 512
-    assert balanced.finer_side() == 1024  # no user cap: the quality's own
+    balanced = QUALITIES["balanced"]  # the network at 256 px first, at up to 512 where the search escalates
+    assert balanced.finer_side(1024) == 512 and balanced.finer_side(200) is None and balanced.finer_side(400) == 400
+    assert balanced.finer_side() == 512  # no user cap: the quality's own
     assert QUALITIES["accurate"].finer_side(1024) is None
     with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, balanced, accurate"):
         quality("quick")

@@ -1,0 +1,71 @@
+"""Verify: the winner's per-pixel checks (:func:`checks`), the confidence they give (:func:`confidence`),
+and the bridge that carries a registered answer's verdict across wide flat gaps (:func:`bridged`).
+
+The maps are :mod:`~projreg.refine.confidence`'s; what they are read from (the candidates' memoised NCC
+maps, DIS's round trip, the rivals' spread) is the pair's context. Convention: maps float32 ``(H, W)`` on
+the projected grid; flows float32 ``(H, W, 2)``, forward, pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.homography import fit_homography, homography_flow
+from ..prediction import CONFIDENT
+from .candidates import Candidate
+from .confidence import gap_confidence, pixel_confidence
+from .context import DisFlows, PairContext, flow_distance
+from .selection import ambiguity
+
+
+def confidence(
+    ctx: PairContext,
+    cands: list[Candidate],
+    scores: dict[str, float],
+    best: Candidate,
+    repeats: np.ndarray | None,
+    dis: DisFlows,
+) -> np.ndarray:
+    """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`~projreg.refine.confidence.pixel_confidence`
+    of :func:`checks`); 0 where the projected image repeats itself (``repeats``)."""
+    cfg = ctx.config.confidence
+    conf = pixel_confidence(ctx.evidence, *checks(ctx, cands, scores, best, dis), cfg.radius * max(ctx.shape), cfg)
+    return conf if repeats is None else np.where(repeats, 0.0, conf).astype(np.float32)
+
+
+def checks(
+    ctx: PairContext, cands: list[Candidate], scores: dict[str, float], best: Candidate, dis: DisFlows
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate ``best``'s check maps: local NCC, forward-backward residual (px, DIS's flows ``dis``) and
+    the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
+    ncc = ctx.ncc(best.key, best.flow)
+    residual = ctx.round_trip(dis, best.key, best.flow)
+    return ncc, residual, ambiguity(ctx, cands, scores, best, ncc, ctx.config.confidence.rival_margin)
+
+
+def bridged(
+    ctx: PairContext,
+    conf: np.ndarray,
+    best: Candidate,
+    cands: list[Candidate],
+    scores: dict[str, float],
+    repeats: np.ndarray | None,
+    dis: DisFlows,
+) -> np.ndarray:
+    """``conf`` raised to the checks averaged across wide flat gaps
+    (:func:`~projreg.refine.confidence.gap_confidence`) where ``best`` stays within ``bridge_px`` of the
+    homography fitted to it on its claimed pixels; ``conf`` itself when that fit fails.
+
+    In a flat gap the answer is the surface model's interpolation; where the plane of the verified
+    region says the same, two models of the gap agree and the gap is claimed."""
+    cfg, (h, w) = ctx.config, ctx.shape
+    fit = cfg.fit
+    found = fit_homography(best.flow, ctx.step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull)
+    if found is None:
+        return conf
+    radius = cfg.confidence.radius * max(h, w)
+    gap = gap_confidence(ctx.evidence, *checks(ctx, cands, scores, best, dis), radius, cfg.confidence)
+    if repeats is not None:
+        gap = np.where(repeats, 0.0, gap)
+    agree = flow_distance(best.flow, homography_flow(found[0], h, w)) < cfg.confidence.bridge_px
+    return np.where(agree, np.maximum(conf, gap), conf).astype(np.float32)

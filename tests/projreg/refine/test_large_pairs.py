@@ -1,0 +1,56 @@
+"""Pairs larger than the default's search side (512 px): searched shrunk, answered and verified at their
+own size (``images.max_side`` with ``images.verify_full``)."""
+
+import cv2
+import numpy as np
+import pytest
+
+from projreg.geometry.homography import homography_flow
+from projreg.refine.config import BALANCED
+from projreg.refine.refiner import GeometricRefiner
+
+from .rendered import BEND_H, bent_pair, network_like
+
+SIZE = (800, 600)  # w, h: the projector of a typical rig
+FULL = BALANCED.with_sections(images={"max_side": None})  # the same search at the pair's own size
+
+
+@pytest.fixture(scope="module")
+def pictures():
+    data = pytest.importorskip("skimage.data")
+    return {n: cv2.resize(getattr(data, n)(), SIZE, interpolation=cv2.INTER_AREA) for n in ("astronaut", "chelsea")}
+
+
+def test_a_large_pair_is_searched_shrunk_and_verified_at_its_own_size(pictures):
+    """The answer, its confidence and its claim are on the pair's own grid; the claimed pixels are as right
+    as those of the same search made at full size, whose answer is the one it would otherwise give."""
+    img0, img1, gt, valid = bent_pair(pictures["astronaut"], amp=4.0, period=240.0)
+    net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(12))
+    pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, net)
+    assert "full size" in info.stages and info.confidence.shape == valid.shape == pred.claimed.shape
+    full = GeometricRefiner(FULL).predict(img0, img1, net)
+    claimed = [np.linalg.norm(p.flow - gt, axis=-1)[p.claimed & valid].mean() for p in (pred, full)]
+    shares = [(p.claimed & valid).mean() for p in (pred, full)]
+    assert pred.registered and claimed[0] < 1.0 and claimed[0] < claimed[1] + 0.1, claimed
+    assert shares[0] > 0.9 and shares[0] > shares[1] - 0.02, shares
+
+
+def test_a_photo_of_another_picture_is_refused_at_full_size(pictures):
+    """The camera saw another picture: the verification at the pair's size claims nothing."""
+    img0, _, gt, valid = bent_pair(pictures["astronaut"], amp=4.0, period=240.0)
+    _, img1, _, _ = bent_pair(pictures["chelsea"], amp=4.0, period=240.0, seed=5)
+    net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(12))
+    pred = GeometricRefiner(BALANCED).predict(img0, img1, net)
+    assert not pred.registered and not pred.claimed.any(), pred.reason
+
+
+def test_an_unverified_large_pair_answers_with_the_networks_homography_at_its_size(pictures):
+    """Nothing verified (the camera saw black): the answer is the homography of the network's flow, found
+    on the shrunk pair and brought back to the pair's own pixels."""
+    img0 = pictures["astronaut"]
+    h, w = img0.shape[:2]
+    plane = homography_flow(BEND_H, h, w)
+    net = plane + np.random.default_rng(3).normal(0, 0.5, plane.shape).astype(np.float32)
+    pred = GeometricRefiner(BALANCED).predict(img0, np.zeros_like(img0), net)
+    assert not pred.registered and not pred.claimed.any()
+    assert np.abs(pred.flow - plane).max() < 0.1, np.abs(pred.flow - plane).max()
