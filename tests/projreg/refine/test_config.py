@@ -36,7 +36,7 @@ def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
     sides = [q.network_side for q in QUALITIES.values()]
     assert sides == sorted(sides)
     assert ACCURATE.images.max_side is None  # only accurate searches every pair at its own size ...
-    assert FAST.images.max_side < BALANCED.images.max_side and BALANCED.images.verify_full  # ... balanced verifies there
+    assert FAST.images.max_side < BALANCED.images.max_side and BALANCED.images.verify_full  # ... balanced verifies
     assert not FAST.search.identity and not FAST.search.sift
     assert BALANCED.search.escalate_below < 1 <= ACCURATE.search.escalate_below and BALANCED.align.direct
     balanced = QUALITIES["balanced"]  # the network at 256 px first, at up to 512 where the search escalates
