@@ -268,7 +268,12 @@ class GeometricRefiner:
 
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:
         """The selection score of ``flow`` on a pair of uint8 RGB images, as :meth:`predict_info` scores its
-        candidates (at the pair's own size)."""
+        candidates: on the pair shrunk to ``images.max_side`` where it searches there (tracking compares
+        the two)."""
+        side = self.config.images.max_side
+        if side is not None and max(projected.shape[:2]) > side:
+            projected, captured = shrink(projected, side), shrink(captured, side)
+            flow = resize_flow(np.asarray(flow, np.float32), projected.shape)
         ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
         return ctx.score("flow", np.asarray(flow, np.float32))
 

@@ -54,3 +54,13 @@ def test_an_unverified_large_pair_answers_with_the_networks_homography_at_its_si
     pred = GeometricRefiner(BALANCED).predict(img0, np.zeros_like(img0), net)
     assert not pred.registered and not pred.claimed.any()
     assert np.abs(pred.flow - plane).max() < 0.1, np.abs(pred.flow - plane).max()
+
+
+def test_the_score_of_a_large_answer_is_its_selection_score(pictures):
+    """Tracking compares a frame's selection score with the score of the last full registration: both on
+    the scale the search ran at."""
+    img0, img1, gt, valid = bent_pair(pictures["astronaut"], amp=4.0, period=240.0)
+    refiner = GeometricRefiner(BALANCED)
+    pred, info = refiner.predict_info(img0, img1, network_like(gt, valid, np.random.default_rng(2)))
+    chosen = info.scores[f"{info.hypothesis}/{info.images}"]
+    assert refiner.score(img0, img1, pred.flow) == pytest.approx(chosen, abs=2e-3)
