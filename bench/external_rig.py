@@ -25,6 +25,10 @@ EXR): the pipeline's EPE on ``V & C`` and on all of ``V``, the claimed share ``|
 baseline's EPE on ``V`` and on ``V & C``; the **ratio** = pipeline EPE on ``V & C`` / the best
 baseline's EPE on the same pixels (issue 16's target: <= 1.5 on every pair, claimed >= 70 % on
 average, mean per-pair EPE <= half the best baseline's; textureless pairs reported).
+
+Times (on an idle machine only): ``predict_seconds``, the wall time of the one ``projreg predict`` folder
+call (start-up, model loading, reading the images and writing the flows included), and
+``baseline_seconds``, each baseline's time over the pairs in this process (``<name>_seconds`` per pair).
 """
 
 from __future__ import annotations
@@ -283,7 +287,9 @@ def score(pair: Pair, out: Path, baselines: dict) -> dict:
         "zero_flow": epe(0 * flow, pair.flow, v),
     }
     for name, method in baselines.items():
+        start = time.perf_counter()
         f = method.predict(pair.projected, pair.captured)
+        row[f"{name}_seconds"] = time.perf_counter() - start
         row[name] = epe(f, pair.flow, v)
         row[f"{name}_on_claimed"] = epe(f, pair.flow, vc)
     on_claimed = [row[f"{n}_on_claimed"] for n in baselines if row[f"{n}_on_claimed"] is not None]
@@ -305,6 +311,7 @@ def summary(rows: list[dict]) -> dict:
         "epe_mean": float(np.mean([r["epe"] for r in rows])),
         "best_baseline_mean": float(np.mean([r["best_baseline"] for r in rows])),
         "not_registered": [r["pair"] for r in rows if not r["registered"]],
+        "baseline_seconds": {k[: -len("_seconds")]: sum(r[k] for r in rows) for k in rows[0] if k.endswith("_seconds")},
     }
 
 

@@ -245,7 +245,9 @@ SETS = (
         "latency",
         "Milliseconds per 384 x 512 pair (median over the pairs, after one untimed warm-up pair; "
         "`ms_per_pair` of `projreg bench`), every method in the same run on the same pairs, so the ratios "
-        "hold where the absolute times drift. To be measured on an idle machine, with the threads stated.",
+        "hold where the absolute times drift; and seconds per 600 x 800 pair of `projreg predict` on two "
+        "folders as a user runs it (`bench/external_rig.py`: one call, start-up and files included) beside "
+        "the baselines' time on the same pairs. To be measured on an idle machine, with the threads stated.",
         (_gen(f"{_B}/latency", f"--split test --pairs 1 --seed 123 --transforms {SPREAD32}"),),
         (
             Run(
@@ -264,6 +266,12 @@ SETS = (
                     f"--quality {q}",
                 )
                 for q in ("accurate", "fast")
+            ),
+            Run(
+                "latency-large.json",
+                f"python bench/external_rig.py --out {_B}/latency/large --size 600x800 "
+                f"--json {RESULTS / 'latency-large.json'}",
+                "600 x 800 pairs, `projreg predict` on two folders",
             ),
         ),
         "dis-medium",

@@ -9,8 +9,9 @@ in ``SETS`` order, groups in the order of the reports. ``--check`` writes nothin
 FILE is not what the files give.
 
 No timing of the evaluation sets is shown (their ``ms_per_pair``, ``ms_mean``, ``predict_seconds``
-and decode ``seconds`` come from a machine shared while they ran); only the ``latency`` set's
-``ms_per_pair`` is, beside its ratio to a peer of the same run and the load average.
+and decode ``seconds`` come from a machine shared while they ran); only the ``latency`` set's are: its
+``ms_per_pair`` beside its ratio to a peer of the same run and the load average, and its large pairs'
+``predict_seconds`` beside the baselines' ``baseline_seconds``.
 """
 
 from __future__ import annotations
@@ -310,6 +311,34 @@ def latency_run(report: dict, meta: dict) -> list[str]:
     ]
 
 
+def large_pairs_run(report: dict) -> list[str]:
+    """A latency set's ``bench/external_rig.py`` report: ``projreg predict``'s seconds per pair (one folder
+    call) beside each baseline's on the same pairs, and what the pipeline claimed there."""
+    s, pairs = report["summary"], report["pairs"]
+    n, per_pair = s["pairs"], s["predict_seconds"] / s["pairs"]
+    peers = {name: total / n for name, total in s["baseline_seconds"].items()}
+    rows = [["`projreg predict` (one call)", num(per_pair), *(num(per_pair / t) for t in peers.values())]]
+    rows += [[f"`{name}`", num(t), *(num(t / u) for u in peers.values())] for name, t in peers.items()]
+    claimed = [p for p in pairs if p["epe_claimed"] is not None]
+    worst = max(claimed, key=lambda p: p["epe_claimed"]) if claimed else None
+    epes = sorted(p["epe"] for p in pairs)
+    median = (epes[(n - 1) // 2] + epes[n // 2]) / 2
+    return [
+        para(f"Data: {n} pairs, {s['size'].replace('x', ' x ')}, seed {s['seed']} (`bench/external_rig.py`)."),
+        "",
+        table(["method", "s per pair", *(f"x `{name}`" for name in peers)], rows),
+        "",
+        para(
+            f"On these pairs `projreg predict` claims {pct(s['claimed_mean'])} % of the pixels with truth on "
+            f"average; median pair EPE {num(median)} px; worst EPE on a pair's claimed pixels "
+            + ("–" if worst is None else f"{num(worst['epe_claimed'])} px (`{worst['pair']}`)")
+            + f"; not registered: {', '.join(s['not_registered']) or 'none'}. The baselines' times are their "
+            "computation alone, in process; `predict`'s includes its start-up and files."
+        ),
+        "",
+    ]
+
+
 def missing(rs: ResultSet) -> list[str]:
     if rs.kind == "latency":
         return [
@@ -342,7 +371,7 @@ def section(rs: ResultSet, results: Path) -> list[str]:
         elif rs.kind == "external":
             out += external_run(report)
         elif rs.kind == "latency":
-            out += latency_run(report, meta)
+            out += latency_run(report, meta) if "results" in report else large_pairs_run(report)
         else:
             out += bench_run(report)
     return out

@@ -83,3 +83,6 @@ def test_a_small_run_reports_every_pair(rig, tmp_path):
                 r["epe_claimed"] / min(r["sift-ransac_on_claimed"], r["dis-medium_on_claimed"])
             )
     assert report["summary"]["pairs"] == 2 and report["summary"]["force"] == {"albedo": "stripes"}
+    timed = report["summary"]["baseline_seconds"]  # each baseline's time over the pairs, for the latency page
+    assert set(timed) == {"sift-ransac", "dis-medium"} and all(t > 0 for t in timed.values())
+    assert timed["sift-ransac"] == pytest.approx(sum(r["sift-ransac_seconds"] for r in report["pairs"]))

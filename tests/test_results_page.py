@@ -133,3 +133,27 @@ def test_a_latency_record_shows_each_method_against_its_peer(gen, tmp_path):
 )
 def test_figures_have_three_significant_digits(gen, value, text):
     assert gen.num(value) == text
+
+
+def test_a_latency_sets_large_pairs_show_predicts_seconds_against_the_baselines(gen, tmp_path):
+    def pair(name, epe, claimed):
+        return {"pair": name, "epe": epe, "epe_claimed": claimed}
+
+    summary = {
+        "pairs": 4,
+        "size": "600x800",
+        "seed": 2026,
+        "predict_seconds": 8.0,
+        "claimed_mean": 0.5,
+        "not_registered": ["blank"],
+        "baseline_seconds": {"sift-ransac": 0.4, "dis-medium": 0.2},
+    }
+    pairs = [pair("a", 0.2, 0.1), pair("b", 1.0, 0.9), pair("c", 3.0, 1.7), pair("blank", 20.0, None)]
+    _write(tmp_path, "latency-large.json", {"summary": summary, "pairs": pairs})
+    _write(tmp_path, "latency.meta.json", _meta("latency", ["latency-large.json"], peer="dis-medium"))
+    text = gen.page(tmp_path)
+    assert "| method | s per pair | x `sift-ransac` | x `dis-medium` |" in text
+    assert "| `projreg predict` (one call) | 2.00 | 20.0 | 40.0 |" in text
+    assert "| `sift-ransac` | 0.100 | 1.00 | 2.00 |" in text
+    prose = " ".join(text.split())
+    assert "median pair EPE 2.00 px; worst EPE on a pair's claimed pixels 1.70 px (`c`); not registered: blank" in prose
