@@ -34,6 +34,10 @@ reads as the algorithm:
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame; otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
 
+A pair longer than ``images.max_side`` runs stages 1-8 shrunk to it; with ``images.verify_full``
+(``balanced``: 512 px) the candidates are then resized to the pair's own grid and the winner verified
+there (stage 5 again, at full resolution) before the verdict.
+
 docs/model.md describes each stage, its parameters (:mod:`~projreg.refine.config`) and what it is for.
 
 Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pixels:
@@ -340,7 +344,9 @@ class GeometricRefiner:
         finer: Callable[[], np.ndarray] | None,
     ) -> tuple[Prediction, RefineInfo]:
         """:meth:`predict_info` on the pair shrunk to ``images.max_side``; flow and confidence resized back
-        (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``."""
+        (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``. With
+        ``images.verify_full`` the search's answer is verified again at the pair's own size instead
+        (:meth:`_at_full_size`): its confidence and claim are the full-size checks'."""
         side = self.config.images.max_side
         small0, small1 = shrink(projected, side), shrink(captured, side)
         smaller = None if finer is None else lambda: resize_flow(finer(), small0.shape)
