@@ -6,6 +6,7 @@ Convention: fields float32 ``(H, W)`` or ``(H, W, 2)`` on the projected grid.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
@@ -152,6 +153,7 @@ def fit_detail(
     ridge: float = 1e-3,
     iterations: int = 3,
     fade: tuple[float, float] = (0.05, 0.3),
+    near_data: Callable[[], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, float | None]:
     """Surface detail finer than the coarse spline (a short-period bend), only where the data carry it.
 
@@ -163,7 +165,9 @@ def fit_detail(
     ``gain``; otherwise no detail is added. The detail fades out where ``weight`` has no data within
     about half a knot spacing (a P-spline extrapolates its slopes; beyond the data that is a guess): it is
     weighted by a ramp over ``fade`` of the texture density within that distance. ``ridge`` and
-    ``iterations`` are the solves' (:func:`fit_bspline`).
+    ``iterations`` are the solves' (:func:`fit_bspline`); ``near_data``: that ramp
+    (:func:`near_data_ramp` of ``weight``, ``grid`` and ``fade``) from a caller that keeps it, asked for
+    only when the detail wins.
 
     Returns:
         ``(detail, bend)``: float32 ``(H, W, 2)`` (zeros when nothing wins) and the chosen penalty
@@ -189,7 +193,7 @@ def fit_detail(
         best = min(losses, key=losses.get)
         if best is None or losses[best] > (1 - gain) * losses[None]:
             return np.zeros_like(remainder, dtype=np.float32), None
-    near_data = near_data_ramp(weight, grid, fade)
+    near = near_data() if near_data is not None else near_data_ramp(weight, grid, fade)
     with one_blas_thread():
         detail = design.evaluate(design.solve(f, w0, robust, ridge, iterations, best))
-    return detail * near_data[..., None], best
+    return detail * near[..., None], best

@@ -25,7 +25,7 @@ from ..geometry.homography import (
     rescaled,
 )
 from ..geometry.images import to_gray
-from ..geometry.splines import fit_bspline, fit_detail, near_data_ramp
+from ..geometry.splines import fit_bspline, fit_detail
 from ..geometry.warp import compose
 from .context import PairContext, flow_distance
 from .evidence import bound_outside
@@ -225,10 +225,10 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is None:
         return None
-    trust, sf = cfg.align.trust_px, cfg.surface
+    trust = cfg.align.trust_px
     plane = homography_flow(found[0], h, w)
     flow = aligned(ctx, "normalised", plane + smooth_rest(ctx, best.flow - plane))
-    near_data = near_data_ramp(ctx.evidence, sf.detail_grid, sf.detail_fade)  # as the detail level fades
+    near_data = ctx.near_data()  # as the detail level fades
     flow = best.flow + near_data[..., None] * (flow - best.flow)  # no change where the images carry no texture
     gap = flow_distance(flow, best.flow)[ctx.textured]
     if not gap.size or float(np.percentile(gap, 100 * cfg.selection.plane_agree_share)) > trust:
@@ -276,6 +276,7 @@ def surface(ctx: PairContext, view: str, base: np.ndarray, residual: np.ndarray,
             ridge=sf.ridge,
             iterations=sf.iterations,
             fade=sf.detail_fade,
+            near_data=lambda: ctx.near_data(view),
         )
         smooth = smooth + detail
     return bound_outside(compose(base, smooth), prior, ctx.support, sf.free_px)

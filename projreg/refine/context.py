@@ -25,6 +25,7 @@ from ..geometry.images import (
     to_gray,
     weighted_mean,
 )
+from ..geometry.splines import near_data_ramp
 from ..geometry.warp import compose, lands_inside, warp_back
 from ..prediction import CONFIDENT
 from .config import RefineConfig
@@ -48,7 +49,8 @@ class Projected:
     ``plain``/``normalised``: its gray image without and with local contrast normalisation; ``evidence``,
     ``share``, ``textured``, ``support``, ``step``: as :class:`PairContext`'s; ``reference``: the local
     statistics the NCC maps compare with; ``weights``: each view's texture weight, by view, filled as
-    asked; ``repeats``: where the image repeats itself (None until the refinement has measured it).
+    asked, and ``near`` the fine spline's data ramp of each (:meth:`PairContext.near_data`); ``repeats``:
+    where the image repeats itself (None until the refinement has measured it).
     """
 
     image: np.ndarray
@@ -61,6 +63,7 @@ class Projected:
     step: int
     reference: LocalStats
     weights: dict[str, np.ndarray] = field(default_factory=dict)
+    near: dict[str, np.ndarray] = field(default_factory=dict)
     repeats: np.ndarray | None = None
 
     @classmethod
@@ -155,6 +158,17 @@ class PairContext:
         if im.albedo:
             out["albedo"] = self.plain
         return out
+
+    def near_data(self, view: str | None = None) -> np.ndarray:
+        """How much data the fine spline has near each pixel on ``view``'s texture weight (None: the
+        evidence): :func:`~projreg.geometry.splines.near_data_ramp`, computed once per projected image."""
+        key = view or "evidence"
+        with self._lock:
+            if key not in self.side.near:
+                sf = self.config.surface
+                weight = self.evidence if view is None else self.weight(view)
+                self.side.near[key] = near_data_ramp(weight, sf.detail_grid, sf.detail_fade)
+        return self.side.near[key]
 
     def weight(self, view: str) -> np.ndarray:
         """The surface fit's texture weight on ``view``: relative on the normalised images, with the
