@@ -149,7 +149,8 @@ class GeometricRefiner:
             )
         flow = np.asarray(flow, np.float32)
         side = self.config.images.max_side
-        if side is not None and max(h, w) > side:
+        # shrunk for the search, unless that leaves a side under MIN_SIDE (a thin strip: refined at its size)
+        if side is not None and max(h, w) > side and min(h, w) * side >= MIN_SIDE * max(h, w):
             return self._predict_shrunk(projected, captured, flow, identity, finer)
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:

@@ -64,3 +64,18 @@ def test_the_score_of_a_large_answer_is_its_selection_score(pictures):
     pred, info = refiner.predict_info(img0, img1, network_like(gt, valid, np.random.default_rng(2)))
     chosen = info.scores[f"{info.hypothesis}/{info.images}"]
     assert refiner.score(img0, img1, pred.flow) == pytest.approx(chosen, abs=2e-3)
+
+
+def test_a_long_thin_strip_is_refined_at_its_own_size(pictures):
+    """A strip too thin to shrink to the search side (48 x 1024: 24 px high at 512) is not passed through
+    unrefined: it is searched at its own size."""
+    strip = np.ascontiguousarray(pictures["astronaut"][200:248, :])  # 48 x 800
+    strip = np.concatenate([strip, strip[:, :224]], axis=1)  # 48 x 1024
+    captured = np.roll(strip, (0, 3), axis=(0, 1))  # the camera sees it 3 px to the right
+    truth = np.zeros((*strip.shape[:2], 2), np.float32)
+    truth[..., 0] = 3.0
+    net = truth + np.random.default_rng(4).normal(0, 1.0, truth.shape).astype(np.float32)
+    pred, info = GeometricRefiner(BALANCED).predict_info(strip, captured, net)
+    inner = np.s_[4:-4, 8:-8]
+    assert info.hypothesis != "skipped" and pred.registered, (info.hypothesis, pred.reason)
+    assert np.abs(pred.flow - truth)[inner][pred.claimed[inner]].mean() < 0.1
