@@ -103,7 +103,7 @@ class GeometricRefiner:
         self._sift = SiftHomography() if self.config.search.sift else None
         self._workers = Workers(self.config.search.workers)
         self._sides: dict[tuple[int, ...], Projected] = {}  # the last projected image's side, by size (the pair's
-        # own and shrunk): reused while it repeats
+        # own and shrunk, two at most): reused while it repeats
 
     def refine(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, RefineInfo]:
         """The refined flow of one pair and what was chosen (:meth:`predict_info` without the verdict)."""
@@ -148,9 +148,7 @@ class GeometricRefiner:
                 f"{projected.shape}, {captured.shape}, {flow.shape}"
             )
         flow = np.asarray(flow, np.float32)
-        side = self.config.images.max_side
-        # shrunk for the search, unless that leaves a side under MIN_SIDE (a thin strip: refined at its size)
-        if side is not None and max(h, w) > side and min(h, w) * side >= MIN_SIDE * max(h, w):
+        if self._searched_shrunk(h, w):
             return self._predict_shrunk(projected, captured, flow, identity, finer)
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
@@ -276,7 +274,7 @@ class GeometricRefiner:
         candidates: on the pair shrunk to ``images.max_side`` where it searches there (tracking compares
         the two)."""
         side = self.config.images.max_side
-        if side is not None and max(projected.shape[:2]) > side:
+        if self._searched_shrunk(*projected.shape[:2]):
             projected, captured = shrink(projected, side), shrink(captured, side)
             flow = resize_flow(np.asarray(flow, np.float32), projected.shape)
         ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
@@ -328,11 +326,19 @@ class GeometricRefiner:
         search.best = select(search.cands, scores, self.config.selection.plane_margin)
         search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
 
+    def _searched_shrunk(self, h: int, w: int) -> bool:
+        """Whether an ``h x w`` pair is searched shrunk to ``images.max_side``: when it is longer, unless that
+        leaves a side under ``MIN_SIDE`` (a thin strip is refined at its own size)."""
+        side = self.config.images.max_side
+        return side is not None and max(h, w) > side and min(h, w) * side >= MIN_SIDE * max(h, w)
+
     def _projected(self, projected: np.ndarray) -> Projected:
         """The projected side of ``projected`` (:class:`~projreg.refine.context.Projected`): the last one
         when it is the same image (a tracked sequence, a folder of captures of one picture), else built."""
         side = self._sides.get(projected.shape)
         if side is None or not side.matches(projected):
+            if projected.shape not in self._sides and len(self._sides) >= 2:  # the pair's size and its shrunk one
+                self._sides.pop(next(iter(self._sides)))
             side = self._sides[projected.shape] = Projected.build(projected, self.config)
         return side
 
