@@ -97,11 +97,15 @@ def test_transformer_shifted_layer_carries_information_across_windows():
     tr = FeatureTransformer(channels=8, num_layers=2, ffn_dim_expansion=1, attn_splits=2).double()
     a = torch.randn(1, 8, 4, 4, dtype=torch.float64, requires_grad=True)
     b = torch.randn(1, 8, 4, 4, dtype=torch.float64, requires_grad=True)
-    ga, gb = torch.autograd.grad(tr(a, b)[0][0, :, 1, 1].sum(), (a, b))
-    assert ga[0, :, 3, 3].abs().sum() > 0 and gb[0, :, 3, 3].abs().sum() > 0
+    # a weighted sum over the channels: their plain sum after a layer norm (gain 1, bias 0) is the residual's
+    # alone, whose gradient reaches other tokens only by rounding
+    weights = torch.arange(1, 9, dtype=torch.float64)
+    ga, gb = torch.autograd.grad((tr(a, b)[0][0, :, 1, 1] * weights).sum(), (a, b))
+    assert ga[0, :, 3, 3].abs().sum() > 1e-6 and gb[0, :, 3, 3].abs().sum() > 1e-6
     # one unshifted layer keeps token (1, 1) inside its own window
     one = FeatureTransformer(channels=8, num_layers=1, ffn_dim_expansion=1, attn_splits=2).double()
-    ga, gb = torch.autograd.grad(one(a, b)[0][0, :, 1, 1].sum(), (a, b))
+    ga, gb = torch.autograd.grad((one(a, b)[0][0, :, 1, 1] * weights).sum(), (a, b))
+    assert ga[0, :, 0, 0].abs().sum() > 1e-6 and gb[0, :, 0, 0].abs().sum() > 1e-6  # its window reaches it
     assert ga[0, :, 2:].abs().sum() == 0 and gb[0, :, :, 2:].abs().sum() == 0
 
 
