@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO ?= demo
 
-.PHONY: device-wheels clean-kernels setup test lint docs demo bench reference-model test-bench real-bench hard-bench external-bench real-protocol bench-decode results results-all clean
+.PHONY: device-wheels clean-kernels setup test lint docs demo bench reference-onnx reference-model test-bench real-bench hard-bench external-bench real-protocol bench-decode results results-all clean
 
 setup: $(VENV)/.installed
 
@@ -55,6 +55,11 @@ device-wheels:
 	python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
 		--platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d .whl "OpenEXR==3.5.3"
 	grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo /.whl/ >> .git/info/exclude
+
+# The shipped reference model's ONNX graph, which `--backend auto` runs on the CPU (docs/design.md, "Threads on
+# a shared machine"); after the weights change (tests/projreg/inference/test_onnx_export.py fails while it is stale)
+reference-onnx: setup
+	$(BIN)/projreg export --onnx projreg/weights/reference.onnx
 
 # The shipped reference model, from scratch (docs/model.md): built-in procedural images only, so every
 # photograph stays unseen. About 4 h 20 min on 2 CPU cores and 27 GB of shards; re-running resumes the data

@@ -39,12 +39,12 @@ class Registrar:
 
     Args:
         model: None or ``"reference"`` (the shipped model), a ``projreg train`` checkpoint, or a graph
-            of ``projreg export --onnx`` (with ``backend="onnxruntime"``).
+            of ``projreg export --onnx``.
         quality: ``fast``, ``balanced`` (the default) or ``accurate``
             (:data:`projreg.refine.config.QUALITIES`): where the network runs and how far the refinement
             searches.
         device, precision, backend: where and how the network runs (``cpu``/``cuda``/``cuda:N``,
-            ``fp32``/``bf16``/``fp16``, ``torch``/``onnxruntime``), as ``predict``'s options.
+            ``fp32``/``bf16``/``fp16``, ``auto``/``torch``/``onnxruntime``), as ``predict``'s options.
         refine: follow the network with the geometric refinement (False: the network alone, every pixel
             claimed).
         max_side: the longest side the network sees at most (also bounded by the quality's).
@@ -60,7 +60,7 @@ class Registrar:
         quality: str = DEFAULT_QUALITY,
         device: str | None = None,
         precision: str = "fp32",
-        backend: str = "torch",
+        backend: str = "auto",
         refine: bool = True,
         max_side: int = 1024,
     ) -> None:

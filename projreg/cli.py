@@ -265,10 +265,11 @@ def export(
 
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
 PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
-BACKEND_HELP = "torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
-QUALITY_HELP = (
-    "fast, balanced or accurate: where the network runs and how far the refinement searches (docs/model.md)."
+BACKEND_HELP = (
+    "auto (onnxruntime for the reference model or an .onnx --model on the CPU in fp32 where it is installed, "
+    "else torch), torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
 )
+QUALITY_HELP = "fast, balanced or accurate: where the network runs and how far the refinement searches (docs/model.md)."
 FAST_HELP = "The same as --quality fast."
 
 
@@ -322,7 +323,7 @@ def bench(
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
-    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="torch|onnxruntime")] = "torch",
+    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="auto|torch|onnxruntime")] = "auto",
     batch_size: Annotated[
         int, typer.Option(help="Samples per network call (pairs of one size are batched).", metavar="N")
     ] = 1,
@@ -433,7 +434,7 @@ def predict(
     ] = False,
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
-    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="torch|onnxruntime")] = "torch",
+    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="auto|torch|onnxruntime")] = "auto",
     batch_size: Annotated[
         int, typer.Option(help="Pairs per network call in folder mode (pairs of one size are batched).", metavar="N")
     ] = 1,

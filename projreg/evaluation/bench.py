@@ -129,7 +129,7 @@ def run_bench(
     extra_methods: Sequence[Method] = (),
     device: torch.device | str | None = None,
     precision: str = "fp32",
-    backend: str = "torch",
+    backend: str = "auto",
     quality: str = DEFAULT_QUALITY,
     compensation: bool = False,
     photometric: bool = False,
@@ -151,7 +151,7 @@ def run_bench(
             ``limit`` whole sequences.
         extra_methods: more methods, reported after the others (a hook for callers and tests).
         device: where models run (``cpu``, ``cuda``, ``cuda:N``); default CUDA when available, else CPU.
-        precision, backend: how models run (``fp32``/``bf16``/``fp16``, ``torch``/``onnxruntime``:
+        precision, backend: how models run (``fp32``/``bf16``/``fp16``, ``auto``/``torch``/``onnxruntime``:
             :func:`projreg.inference.runtime.open_network`).
         quality: the quality setting of every model (:data:`projreg.refine.config.QUALITIES`: where the
             network runs and how the refinement searches).

@@ -64,7 +64,7 @@ class ModelRun:
     refine: str = "on"
     device: torch.device | str | None = None
     precision: str = "fp32"
-    backend: str = "torch"
+    backend: str = "auto"
     quality: str = DEFAULT_QUALITY
     track: bool = False
     batch_size: int = 1

@@ -137,7 +137,7 @@ def predict(
     refine: bool = True,
     device: str | None = None,
     precision: str = "fp32",
-    backend: str = "torch",
+    backend: str = "auto",
     batch_size: int = 1,
     quality: str = DEFAULT_QUALITY,
     progress: Callable[[int, int], None] | None = None,

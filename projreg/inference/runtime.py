@@ -9,7 +9,14 @@ Two backends give one:
   (:meth:`~projreg.model.net.SSJMFlow.cast_features`: the backbone, SSJM and transformer weights are
   cast; matching, propagation, the 1/4 refinement and upsampling stay float32);
 * ``onnxruntime``: a graph written by ``projreg export --onnx`` (float32), on the CPU or, where
-  onnxruntime has it, CUDA.
+  onnxruntime has it, CUDA;
+* ``auto`` (the default): onnxruntime for a float32 network on the CPU where it is installed and a graph
+  of the model is at hand (a ``.onnx`` model, or the shipped reference model's graph
+  ``projreg/weights/reference.onnx``, exported from the shipped checkpoint); torch otherwise. The
+  same network either way, to float rounding (about 1e-3 px), and on the CPU onnxruntime's fused
+  kernels wake its threads far less often than torch's operators: on the 2-core VM the network at
+  256 px took 90-105 ms against torch's 155-170 with ``OMP_WAIT_POLICY=PASSIVE`` (what the tools set for
+  a shared machine), and stays ahead beside a competing job (docs/design.md, "Threads on a shared machine").
 
 :func:`flows_resized` runs a list of pairs through a network, shrinking those longer than ``max_side``
 and batching pairs whose network inputs share a size.
@@ -17,11 +24,14 @@ and batching pairs whose network inputs share a size.
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from projsynth.utils.files import file_sha256
 
 from ..errors import ProjregError
 from ..geometry.frames import resize_flow, shrink
@@ -31,7 +41,8 @@ from .onnx_export import INPUTS, OUTPUT
 Network = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
-BACKENDS = ("torch", "onnxruntime")
+BACKENDS = ("auto", "torch", "onnxruntime")
+DEFAULT_BACKEND = "auto"
 EXTRA = "pip install 'projsynth[onnx]'"
 
 
@@ -105,7 +116,9 @@ class TorchNetwork:
 class OnnxNetwork:
     """A graph written by ``projreg export --onnx``, in an onnxruntime session.
 
-    ``threads``: onnxruntime's intra-op threads (default: as many as torch uses).
+    ``threads``: onnxruntime's intra-op threads (default: as many as torch uses). They sleep when out of
+    work instead of spinning (``session.intra_op.allow_spinning`` 0): idle as fast, and beside another job
+    they leave it the cores (docs/design.md, "Threads on a shared machine").
     """
 
     def __init__(self, path: Path, device: torch.device, threads: int | None = None) -> None:
@@ -117,6 +130,7 @@ class OnnxNetwork:
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads or torch.get_num_threads()
         options.log_severity_level = 3  # warnings about unused initialisers are not the user's concern
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         providers: list = ["CPUExecutionProvider"]
         if device.type == "cuda":
             if "CUDAExecutionProvider" not in ort.get_available_providers():
@@ -138,6 +152,7 @@ class OnnxNetwork:
                 f"--model {path}: inputs {names[0]} and outputs {names[1]}, expected {list(INPUTS)} "
                 f"and [{OUTPUT!r}]; pass a graph written by `projreg export --onnx`"
             )
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)  # its provenance (onnx_export)
 
     def __call__(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
         feed = {
@@ -150,7 +165,7 @@ class OnnxNetwork:
 def open_network(
     model: Path | str | None,
     *,
-    backend: str = "torch",
+    backend: str = DEFAULT_BACKEND,
     device: str | torch.device | None = None,
     precision: str = "fp32",
 ) -> Network:
@@ -159,7 +174,7 @@ def open_network(
     Args:
         model: a checkpoint (``torch``; None or ``reference``: the shipped reference model) or a
             ``.onnx`` file written by ``projreg export --onnx`` (``onnxruntime``).
-        backend: ``torch`` or ``onnxruntime``.
+        backend: ``auto`` (the default), ``torch`` or ``onnxruntime`` (module docstring).
         device: ``cpu``, ``cuda``, ``cuda:N``; None: CUDA when available, else the CPU.
         precision: ``fp32``, ``bf16`` or ``fp16`` (``onnxruntime``: fp32 only).
 
@@ -173,6 +188,10 @@ def open_network(
     dev = parse_device(device)
     dtype = parse_precision(precision, dev)
     is_onnx = model is not None and Path(model).suffix.lower() == ".onnx"
+    if backend == "auto":
+        if not is_onnx and (net := _reference_graph(model, dev, precision)) is not None:
+            return net
+        backend = "onnxruntime" if is_onnx else "torch"
     if backend == "torch":
         if is_onnx:
             raise ProjregError(f"--model {model}: an ONNX graph; run it with --backend onnxruntime")
@@ -191,6 +210,21 @@ def open_network(
     if not Path(model).is_file():
         raise ProjregError(f"--model {model}: no such file")
     return OnnxNetwork(Path(model), dev)
+
+
+def _reference_graph(model: Path | str | None, device: torch.device, precision: str) -> OnnxNetwork | None:
+    """The shipped reference graph in onnxruntime, where ``auto`` runs it (module docstring): ``model``
+    is the shipped reference model, the network runs in float32 on the CPU, onnxruntime is installed,
+    and the graph records the shipped checkpoint's SHA-256 (else None: torch runs the checkpoint)."""
+    from ..model.checkpoint import reference_checkpoint, reference_graph, resolve_checkpoint
+
+    if device.type != "cpu" or precision != "fp32" or importlib.util.find_spec("onnxruntime") is None:
+        return None
+    ref, graph = reference_checkpoint(), reference_graph()
+    if ref is None or graph is None or resolve_checkpoint(model).resolve() != ref.resolve():
+        return None
+    net = OnnxNetwork(graph, device)
+    return net if net.metadata.get("projreg_checkpoint_sha256") == file_sha256(ref) else None
 
 
 def finer_flow(

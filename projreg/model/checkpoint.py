@@ -107,6 +107,13 @@ def reference_checkpoint() -> Path | None:
     return Path(str(ref)) if ref.is_file() else None
 
 
+def reference_graph() -> Path | None:
+    """The shipped reference model's ONNX graph ``projreg/weights/reference.onnx`` (``make reference-onnx``:
+    ``projreg export --onnx`` of the shipped checkpoint), or None while none ships."""
+    ref = importlib.resources.files("projreg").joinpath("weights", "reference.onnx")
+    return Path(str(ref)) if ref.is_file() else None
+
+
 def resolve_checkpoint(spec: Path | str | None) -> Path:
     """``spec`` as a checkpoint path; None or the name ``reference`` (when no such file exists) is the
     shipped reference model. Raises ProjregError when that is asked for and none ships."""

@@ -1,6 +1,9 @@
 """``projreg export --onnx``: one export of a tiny network (the exporter's symbolic tracing takes about
 40 s of CPU even for it), then checks on the graph and onnxruntime against PyTorch."""
 
+import importlib.util
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -8,10 +11,13 @@ import torch
 from typer.testing import CliRunner
 
 from projreg.cli import app
-from projreg.inference.runtime import OnnxNetwork, TorchNetwork
+from projreg.inference.runtime import OnnxNetwork, TorchNetwork, open_network
+from projreg.model import checkpoint
+from projreg.model.checkpoint import load_model, reference_checkpoint, reference_graph
 from projreg.model.net import SSJMFlow
 from projsynth.dataset.shards import ShardReader
 from projsynth.flow.formats import read_flow_exr
+from projsynth.utils.files import file_sha256
 
 onnx = pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
@@ -134,12 +140,44 @@ def test_bad_export_options_are_one_line_errors(tiny_ckpt, tmp_path, one_line_er
     assert not list(tmp_path.iterdir())
 
 
-def test_an_onnx_graph_needs_the_onnxruntime_backend(tmp_path, one_line_error):
+def test_an_onnx_graph_runs_in_onnxruntime(tmp_path, one_line_error):
     a = tmp_path / "a.png"
     cv2.imwrite(str(a), np.zeros((32, 32, 3), np.uint8))
     fake = tmp_path / "m.onnx"
     fake.write_bytes(b"not a graph")
     args = ("predict", "--projected", a, "--captured", a, "--out", tmp_path / "f.exr", "--model", fake, "-q")
-    one_line_error(_cli(*args), "--backend onnxruntime")
+    one_line_error(_cli(*args, "--backend", "torch"), "--backend onnxruntime")
+    one_line_error(_cli(*args), "m.onnx", "cannot load")  # auto: a graph runs in onnxruntime
     one_line_error(_cli(*args, "--backend", "onnxruntime"), "m.onnx", "cannot load")
     one_line_error(_cli(*args, "--backend", "onnxruntime", "--precision", "bf16"), "--precision bf16")
+
+
+def test_the_shipped_graph_is_the_shipped_checkpoint(pair):
+    """``make reference-onnx`` was run after the weights last changed: the graph records the checkpoint's
+    SHA-256 and computes its flow (to float rounding) at the default network side and at the escalation's."""
+    graph, ckpt = reference_graph(), reference_checkpoint()
+    assert graph is not None and ckpt is not None
+    net = OnnxNetwork(graph, CPU)
+    assert net.metadata["projreg_checkpoint_sha256"] == file_sha256(ckpt), "stale graph: run `make reference-onnx`"
+    torch_net = TorchNetwork(load_model(ckpt, CPU), CPU)
+    for side in (256, 512):
+        a, b = (cv2.resize(x, (side, side * 3 // 4), interpolation=cv2.INTER_AREA)[None] for x in pair)
+        assert np.abs(net(a, b) - torch_net(a, b)).max() < 0.01
+
+
+def test_auto_runs_the_reference_graph_where_onnxruntime_can(tiny_ckpt, monkeypatch):
+    assert isinstance(open_network(None), OnnxNetwork) and isinstance(open_network("reference"), OnnxNetwork)
+    assert isinstance(open_network(reference_checkpoint()), OnnxNetwork)
+    assert isinstance(open_network(None, backend="torch"), TorchNetwork)
+    assert isinstance(open_network(None, precision="bf16"), TorchNetwork)  # the graph is float32
+    assert isinstance(open_network(tiny_ckpt), TorchNetwork)  # a checkpoint of one's own: no graph of it
+    # a graph exported from other weights than the shipped ones is not run in their place
+    monkeypatch.setattr(checkpoint, "reference_checkpoint", lambda: Path(tiny_ckpt))
+    stale = open_network(None)
+    assert isinstance(stale, TorchNetwork) and stale.model.config == load_model(tiny_ckpt, CPU).config
+    monkeypatch.undo()
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "onnxruntime" else find_spec(name, *a)
+    )
+    assert isinstance(open_network(None), TorchNetwork)  # without onnxruntime, torch
