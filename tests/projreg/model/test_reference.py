@@ -55,6 +55,8 @@ def gate_report(gate_data, tmp_path_factory):
         ",".join(GATE["baselines"]),
         "--refine",
         "both",
+        "--backend",  # the thresholds' runtime (docs/design.md, "CI gate")
+        "torch",
         "--json",
         str(out),
         "-q",
