@@ -214,17 +214,21 @@ def open_network(
 
 def _reference_graph(model: Path | str | None, device: torch.device, precision: str) -> OnnxNetwork | None:
     """The shipped reference graph in onnxruntime, where ``auto`` runs it (module docstring): ``model``
-    is the shipped reference model, the network runs in float32 on the CPU, onnxruntime is installed,
-    and the graph records the shipped checkpoint's SHA-256 (else None: torch runs the checkpoint)."""
+    is the shipped reference model (or a copy of its file), the network runs in float32 on the CPU,
+    onnxruntime is installed, and the graph records the shipped checkpoint's SHA-256 (else None: torch
+    runs the checkpoint)."""
     from ..model.checkpoint import reference_checkpoint, reference_graph, resolve_checkpoint
 
     if device.type != "cpu" or precision != "fp32" or importlib.util.find_spec("onnxruntime") is None:
         return None
-    ref, graph = reference_checkpoint(), reference_graph()
-    if ref is None or graph is None or resolve_checkpoint(model).resolve() != ref.resolve():
+    ref, graph, path = reference_checkpoint(), reference_graph(), resolve_checkpoint(model)
+    if ref is None or graph is None or not path.is_file():
+        return None
+    sha = file_sha256(ref)
+    if path.resolve() != ref.resolve() and file_sha256(path) != sha:
         return None
     net = OnnxNetwork(graph, device)
-    return net if net.metadata.get("projreg_checkpoint_sha256") == file_sha256(ref) else None
+    return net if net.metadata.get("projreg_checkpoint_sha256") == sha else None
 
 
 def finer_flow(

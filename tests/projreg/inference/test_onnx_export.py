@@ -165,9 +165,12 @@ def test_the_shipped_graph_is_the_shipped_checkpoint(pair):
         assert np.abs(net(a, b) - torch_net(a, b)).max() < 0.01
 
 
-def test_auto_runs_the_reference_graph_where_onnxruntime_can(tiny_ckpt, monkeypatch):
+def test_auto_runs_the_reference_graph_where_onnxruntime_can(tiny_ckpt, monkeypatch, tmp_path):
     assert isinstance(open_network(None), OnnxNetwork) and isinstance(open_network("reference"), OnnxNetwork)
     assert isinstance(open_network(reference_checkpoint()), OnnxNetwork)
+    copy = tmp_path / "weights.pt"  # the same weights elsewhere: the same graph
+    copy.write_bytes(reference_checkpoint().read_bytes())
+    assert isinstance(open_network(copy), OnnxNetwork)
     assert isinstance(open_network(None, backend="torch"), TorchNetwork)
     assert isinstance(open_network(None, precision="bf16"), TorchNetwork)  # the graph is float32
     assert isinstance(open_network(tiny_ckpt), TorchNetwork)  # a checkpoint of one's own: no graph of it
