@@ -26,7 +26,7 @@ from .geometry.frames import flow_to_captured, frame_scale, resize_to
 from .inference.compensate import compensate as _prewarp
 from .inference.radiometric import calibrate, solve
 from .inference.register import Registration, check_image, register_pairs
-from .inference.runtime import open_network
+from .inference.runtime import DEFAULT_BACKEND, open_network
 from .inference.track import Tracker
 from .prediction import CONFIDENT, Prediction
 from .refine.config import DEFAULT_QUALITY
@@ -60,7 +60,7 @@ class Registrar:
         quality: str = DEFAULT_QUALITY,
         device: str | None = None,
         precision: str = "fp32",
-        backend: str = "auto",
+        backend: str = DEFAULT_BACKEND,
         refine: bool = True,
         max_side: int = 1024,
     ) -> None:

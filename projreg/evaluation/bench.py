@@ -47,6 +47,7 @@ from projsynth.utils.outputs import folder_files, refuse_overwriting_inputs
 
 from ..errors import ProjregError
 from ..geometry.frames import register_any_size, resize_to
+from ..inference.runtime import DEFAULT_BACKEND
 from ..inference.track import JitterAccumulator
 from ..model.checkpoint import reference_checkpoint
 from ..prediction import Prediction, as_prediction
@@ -129,7 +130,7 @@ def run_bench(
     extra_methods: Sequence[Method] = (),
     device: torch.device | str | None = None,
     precision: str = "fp32",
-    backend: str = "auto",
+    backend: str = DEFAULT_BACKEND,
     quality: str = DEFAULT_QUALITY,
     compensation: bool = False,
     photometric: bool = False,

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from ..errors import ProjregError
-from ..inference.runtime import finer_flow, flows_resized, open_network
+from ..inference.runtime import DEFAULT_BACKEND, finer_flow, flows_resized, open_network
 from ..inference.track import FlowTracker, Tracker
 from ..model.checkpoint import reference_checkpoint, resolve_checkpoint
 from ..prediction import Prediction
@@ -64,7 +64,7 @@ class ModelRun:
     refine: str = "on"
     device: torch.device | str | None = None
     precision: str = "fp32"
-    backend: str = "auto"
+    backend: str = DEFAULT_BACKEND
     quality: str = DEFAULT_QUALITY
     track: bool = False
     batch_size: int = 1

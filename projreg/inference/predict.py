@@ -40,7 +40,7 @@ from ..refine.config import quality as resolve_quality
 from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
 from .register import register_pairs
-from .runtime import OnnxNetwork, TorchNetwork, finer_flow, flows_resized, open_network
+from .runtime import DEFAULT_BACKEND, OnnxNetwork, TorchNetwork, finer_flow, flows_resized, open_network
 from .track import Tracker
 
 
@@ -137,7 +137,7 @@ def predict(
     refine: bool = True,
     device: str | None = None,
     precision: str = "fp32",
-    backend: str = "auto",
+    backend: str = DEFAULT_BACKEND,
     batch_size: int = 1,
     quality: str = DEFAULT_QUALITY,
     progress: Callable[[int, int], None] | None = None,
