@@ -5,6 +5,8 @@ verified.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -85,18 +87,10 @@ def periodicity(gray: np.ndarray, tile: int = 64, lobe: float = 0.3, overlap: fl
         return np.zeros((h, w), np.float32)
     g = gray.astype(np.float32)
     starts = [np.unique(np.r_[np.arange(0, n - tile + 1, tile), n - tile]) for n in (h, w)]
-    hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
+    hann, window = _hann_window(tile)
     tiles = np.stack([g[y : y + tile, x : x + tile] for y in starts[0] for x in starts[1]])  # [T, tile, tile]
     tiles = (tiles - tiles.mean(axis=(1, 2), keepdims=True)) * hann
-
-    def autocorrelation(a: np.ndarray) -> np.ndarray:  # [..., 2 tile, 2 tile], zero shift at the centre
-        power = np.abs(np.fft.rfft2(a, s=(2 * tile, 2 * tile))) ** 2
-        return np.fft.fftshift(np.fft.irfft2(power, s=(2 * tile, 2 * tile)), axes=(-2, -1))
-
-    c = tile  # the zero shift after fftshift
-    span = slice(c - tile // 2, c + tile // 2 + 1)
-    window = autocorrelation(hann)[span, span]
-    ac = autocorrelation(tiles)[:, span, span] / np.maximum(window, 1e-6)  # [T, tile + 1, tile + 1]
+    ac = _autocorrelation(tiles) / window  # [T, tile + 1, tile + 1]
     ac = ac / np.maximum(ac[:, tile // 2, tile // 2 : tile // 2 + 1, None], 1e-6)
     ac[:, window < overlap * window.max()] = 0.0  # shifts whose windows barely overlap say nothing
     scores = np.zeros(len(tiles), np.float32)
@@ -114,6 +108,26 @@ def periodicity(gray: np.ndarray, tile: int = 64, lobe: float = 0.3, overlap: fl
     )
     mx, my = np.meshgrid(x.astype(np.float32), y.astype(np.float32))
     return cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _autocorrelation(a: np.ndarray) -> np.ndarray:
+    """The linear autocorrelation of ``tile x tile`` arrays ``a`` ``[..., tile, tile]`` at shifts up to half a
+    tile each way, ``[..., tile + 1, tile + 1]`` with zero shift at the centre: by FFT zero-padded to 1.5
+    tiles, the least that keeps those shifts free of the circular wrap."""
+    tile = a.shape[-1]
+    n = tile + tile // 2
+    power = np.abs(np.fft.rfft2(a, s=(n, n))) ** 2
+    ac = np.fft.fftshift(np.fft.irfft2(power, s=(n, n)), axes=(-2, -1))
+    span = slice(n // 2 - tile // 2, n // 2 + tile // 2 + 1)
+    return ac[..., span, span]
+
+
+@lru_cache(maxsize=8)
+def _hann_window(tile: int) -> tuple[np.ndarray, np.ndarray]:
+    """The 2-D Hann window of a tile and its own autocorrelation (floored at 1e-6): the weight each shift's
+    overlap carries."""
+    hann = np.outer(np.hanning(tile), np.hanning(tile)).astype(np.float32)
+    return hann, np.maximum(_autocorrelation(hann), 1e-6)
 
 
 def alignment_score(
