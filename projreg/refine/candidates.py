@@ -1,6 +1,6 @@
 """The refinement's starts and candidates: :class:`Start` (a hypothesis: a homography and the flow it came
 from), :class:`Candidate` (a refined flow, or a homography alone), and the two stages that make them:
-:func:`propose` and :func:`refine_start`.
+:func:`refine_start` (DIS) and :func:`align_view` with :func:`polish` (direct alignment).
 
 Convention: flows float32 ``(H, W, 2)``, forward, projected -> captured, pixels; homographies 3 x 3,
 projected -> captured.
@@ -47,7 +47,7 @@ class Candidate:
     """A flow that competes in the selection: refined from start ``hypothesis`` on view ``images``
     ("normalised", "plain", "albedo"), or, ``plane`` True, the homography alone (refitted from that
     candidate, or SIFT's with ``images`` "homography"); ``aligned``: by direct alignment instead of DIS;
-    ``polished``: an alignment polished by DIS (:func:`align_start`); ``realigned``: the winner re-aligned
+    ``polished``: an alignment polished by DIS (:func:`polish`); ``realigned``: the winner re-aligned
     (:func:`realign`)."""
 
     hypothesis: str
@@ -181,33 +181,47 @@ def refine_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: 
     return out
 
 
-def align_start(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, view: str) -> list[Candidate]:
+def align_view(ctx: PairContext, start: Start, view: str) -> Candidate:
     """The direct alignment of one start on one view (:func:`aligned`), held within ``free_px`` of the
-    start's prior outside the support, and, ``align.polish`` on, the same polished by the surface model
-    of DIS's residual on it (where the spline did not converge, e.g. a bend finer than its coarse grid,
-    DIS measures what is left): on its own view, and the plain images' alignment also on the albedo view
-    (the same images with the wall's reflectance divided out) when ``images.albedo`` is on. The
-    alignment starts from the start's homography, or, ``align.from_surface`` on, from its smooth surface
-    (:func:`smooth_rest` of the rest of its prior: a tracked frame's start is the last frame's answer,
-    whose bend carries over). The homography refitted to the alignment competes alone where it stands
-    for it (:func:`plane_agrees`)."""
+    start's prior outside the support. It starts from the start's homography, or, ``align.from_surface``
+    on, from its smooth surface (:func:`smooth_rest` of the rest of its prior: a tracked frame's start is
+    the last frame's answer, whose bend carries over)."""
     cfg, (h, w) = ctx.config, ctx.shape
-    sf, fit = cfg.surface, cfg.fit
     begin = homography_flow(start.H, h, w)
     if cfg.align.from_surface:
         begin = begin + smooth_rest(ctx, start.prior - begin)
-    flow = bound_outside(aligned(ctx, view, begin), start.prior, ctx.support, sf.free_px)
-    out = [Candidate(start.name, view, flow, aligned=True)]
-    for on in (view, "albedo") if view == "plain" and cfg.images.albedo else (view,):
-        if cfg.align.polish:  # the albedo view's warped image is the aligned candidate's own seen one
-            polished = surface(ctx, on, flow, ctx.residual(dis, on, flow, out[0].key), start.prior)
-            out.append(Candidate(start.name, on, polished, aligned=True, polished=True))
-    found = fit_homography(flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
-    if found is not None:
-        plane = bound_outside(homography_flow(found[0], h, w), start.prior, ctx.support, sf.free_px)
-        if plane_agrees(ctx, plane, flow):
-            out.append(Candidate(start.name, view, plane, plane=True, aligned=True))
-    return out
+    flow = bound_outside(aligned(ctx, view, begin), start.prior, ctx.support, cfg.surface.free_px)
+    return Candidate(start.name, view, flow, aligned=True)
+
+
+def polish_views(ctx: PairContext, view: str) -> tuple[str, ...]:
+    """The views an alignment on ``view`` is polished on (:func:`polish`): none with ``align.polish`` off;
+    its own, and for the plain images' also the albedo view (the same images with the wall's
+    reflectance divided out) when ``images.albedo`` is on."""
+    if not ctx.config.align.polish:
+        return ()
+    return (view, "albedo") if view == "plain" and ctx.config.images.albedo else (view,)
+
+
+def polish(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, alignment: Candidate, view: str) -> Candidate:
+    """An ``alignment`` (:func:`align_view`) polished by the surface model of DIS's residual on ``view``:
+    where the spline did not converge (e.g. a bend finer than its coarse grid), DIS measures what is
+    left. On the albedo view the warped image is the alignment's own seen one."""
+    residual = ctx.residual(dis, view, alignment.flow, alignment.key)
+    flow = surface(ctx, view, alignment.flow, residual, start.prior)
+    return Candidate(start.name, view, flow, aligned=True, polished=True)
+
+
+def aligned_plane(ctx: PairContext, start: Start, alignment: Candidate) -> Candidate | None:
+    """The homography refitted to an ``alignment``, held within ``free_px`` of the start's prior outside
+    the support, as a candidate alone where it stands for it (:func:`plane_agrees`); else None."""
+    cfg, (h, w) = ctx.config, ctx.shape
+    fit = cfg.fit
+    found = fit_homography(alignment.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
+    if found is None:
+        return None
+    plane = bound_outside(homography_flow(found[0], h, w), start.prior, ctx.support, cfg.surface.free_px)
+    return replace(alignment, flow=plane, plane=True) if plane_agrees(ctx, plane, alignment.flow) else None
 
 
 def realign(ctx: PairContext, best: Candidate) -> Candidate | None:

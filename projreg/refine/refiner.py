@@ -24,7 +24,8 @@ reads as the algorithm:
 6. **Escalate**: when the network's answer claims less than ``escalate_below`` of the textured pixels
    it keeps in the frame, the second stage's starts are refined and selected with the first's;
    otherwise they are not tried. With ``align.direct`` (``balanced``, the default) the first stage aligns
-   the network's start directly and polishes it with DIS (:func:`~projreg.refine.candidates.align_start`);
+   the network's start directly and polishes it with DIS (:func:`~projreg.refine.candidates.align_view`,
+   :func:`~projreg.refine.candidates.polish`);
    an escalation drops those candidates, and may restart from the network's flow at a finer resolution
    (``finer``) with DIS on every view.
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
@@ -62,10 +63,13 @@ from .candidates import (
     Candidate,
     RefineInfo,
     Start,
-    align_start,
+    align_view,
+    aligned_plane,
     grown_start,
     identity_start,
     network_starts,
+    polish,
+    polish_views,
     realign,
     refine_start,
     sift_plane,
@@ -281,19 +285,22 @@ class GeometricRefiner:
         return ctx.score("flow", np.asarray(flow, np.float32))
 
     def _stage(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list[Candidate]:
-        """Every start refined on each of ``views`` (the albedo view from the network's and SIFT's starts only),
-        side by side on the pool, in a fixed order: the refined candidates (views, then starts), then the
-        planes in the same order, then SIFT's homography alone; each scored."""
-        return self._gather(ctx, starts, self._submit(ctx, starts, views, direct))
+        """Every start refined on each of ``views`` (:meth:`_refined`), or, ``direct``, aligned on them
+        (:meth:`_aligned`); each candidate scored."""
+        if direct:
+            return self._aligned(ctx, starts, views)
+        return self._gather(ctx, starts, self._submit(ctx, starts, views))
 
-    def _submit(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list[Future]:
-        """:meth:`_stage`'s refinements, submitted to the pool, in :meth:`_stage`'s order."""
+    def _submit(self, ctx: PairContext, starts: list[Start], views: list[str]) -> list[Future]:
+        """DIS's refinement of every start on each of ``views`` (the albedo view from the network's and SIFT's
+        starts only), submitted to the pool, views then starts."""
         jobs = [(s, view) for view in views for s in starts if s.H is not None]
         jobs = [(s, view) for s, view in jobs if not (view == "albedo" and s.name == "identity")]
-        return [self._workers.submit(self._refine_scored, ctx, *job, direct) for job in jobs]
+        return [self._workers.submit(self._refined, ctx, *job) for job in jobs]
 
     def _gather(self, ctx: PairContext, starts: list[Start], submitted: list[Future]) -> list[Candidate]:
-        """:meth:`_stage`'s candidates from what :meth:`_submit` returned for ``starts``."""
+        """The candidates of what :meth:`_submit` returned for ``starts``, in a fixed order: the refined
+        candidates, then the planes, then SIFT's homography alone."""
         done = [job.result() for job in submitted]
         out = [c for group in done for c in group if not c.plane] + [c for group in done for c in group if c.plane]
         for s in starts:
@@ -303,11 +310,37 @@ class GeometricRefiner:
                 out.append(plane)
         return out
 
-    def _refine_scored(self, ctx: PairContext, start: Start, view: str, direct: bool) -> list[Candidate]:
-        cands = (align_start if direct else refine_start)(ctx, self._workers.dis(), start, view)
+    def _refined(self, ctx: PairContext, start: Start, view: str) -> list[Candidate]:
+        cands = refine_start(ctx, self._workers.dis(), start, view)
         for c in cands:
             ctx.ncc(c.key, c.flow)  # the score's map, computed on this thread
         return cands
+
+    def _aligned(self, ctx: PairContext, starts: list[Start], views: list[str]) -> list[Candidate]:
+        """Every start aligned directly on each of ``views`` side by side on the pool; each alignment's polishes
+        and refitted plane are tasks of their own, submitted as it is done, so both threads stay busy. In a
+        fixed order: each alignment followed by its polishes, then the planes."""
+        jobs = [(s, view) for view in views for s in starts if s.H is not None]
+        aligning = [self._workers.submit(self._scored, align_view, ctx, s, view) for s, view in jobs]
+        finishing = []
+        for (s, view), job in zip(jobs, aligning, strict=True):
+            alignment = job.result()
+            polishing = [self._workers.submit(self._polished, ctx, s, alignment, on) for on in polish_views(ctx, view)]
+            plane = self._workers.submit(self._scored, aligned_plane, ctx, s, alignment)
+            finishing.append((alignment, polishing, plane))
+        out = [c for alignment, polishing, _ in finishing for c in [alignment] + [job.result() for job in polishing]]
+        return out + [plane for *_, job in finishing if (plane := job.result()) is not None]
+
+    def _polished(self, ctx: PairContext, start: Start, alignment: Candidate, view: str) -> Candidate:
+        return self._scored(polish, ctx, self._workers.dis(), start, alignment, view)
+
+    @staticmethod
+    def _scored(make: Callable[..., Candidate | None], ctx: PairContext, *args) -> Candidate | None:
+        """``make(ctx, *args)``, with its score's map computed on this thread."""
+        cand = make(ctx, *args)
+        if cand is not None:
+            ctx.ncc(cand.key, cand.flow)
+        return cand
 
     def _second_starts(
         self, ctx: PairContext, projected: np.ndarray, captured: np.ndarray, usable: bool
