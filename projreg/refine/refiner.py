@@ -78,7 +78,7 @@ from .candidates import (
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
 from .evidence import repeating, unverified
-from .selection import select
+from .selection import rivals, select
 from .workers import Workers
 
 
@@ -270,7 +270,16 @@ class GeometricRefiner:
         best: Candidate,
         repeats: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`~projreg.refine.verify.confidence`)."""
+        """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`~projreg.refine.verify.confidence`).
+
+        The maps its checks read are made side by side first: the local NCC of ``best`` and of its rivals on the
+        pool, and DIS's round trip of ``best`` queued behind them."""
+        margin = self.config.confidence.rival_margin
+        maps = [self._workers.submit(ctx.ncc, c.key, c.flow) for c in [best, *rivals(cands, scores, best, margin)]]
+        maps[0].result()  # the winner's warped image, which the round trip reads too
+        ctx.round_trip(self._workers.dis_flows, best.key, best.flow)
+        for job in maps:
+            job.result()
         return verify.confidence(ctx, cands, scores, best, repeats, self._workers.dis_flows)
 
     def score(self, projected: np.ndarray, captured: np.ndarray, flow: np.ndarray) -> float:

@@ -43,9 +43,12 @@ def ambiguity(
     own local NCC is within ``margin`` of the winner's there: two answers that both explain a
     neighbourhood (a repeating pattern) leave it ambiguous; a rival that fails there is just wrong."""
     spread = np.zeros(ctx.shape, np.float32)
-    for c in cands:
-        if c.key == best.key or c.refitted or scores[c.key] < scores[best.key] - margin:
-            continue
+    for c in rivals(cands, scores, best, margin):
         explains = ctx.ncc(c.key, c.flow) >= ncc - margin
         spread = np.maximum(spread, np.where(explains, flow_distance(c.flow, best.flow), 0.0))
     return spread
+
+
+def rivals(cands: list[Candidate], scores: dict[str, float], best: Candidate, margin: float) -> list[Candidate]:
+    """The candidates that score within ``margin`` of ``best`` and are not a refitted plane (:func:`ambiguity`)."""
+    return [c for c in cands if c.key != best.key and not c.refitted and scores[c.key] >= scores[best.key] - margin]
