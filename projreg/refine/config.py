@@ -129,7 +129,9 @@ class ConfidenceConfig:
     sparse: float = 0.05  # texture density at which the fine neighbourhood starts to count
     coarse_sparse: float = 0.1  # ... the coarse one (twice the radius) and the bridge's (four times)
     dense: float = 0.2  # texture density at which a neighbourhood counts fully
-    registered_above: float = 0.01  # a pair whose claimed share is below this is not registered
+    registered_above: float = 0.01  # a pair whose claimed share is below this is not registered ...
+    registered_windows: float = 6.0  # ... nor one whose claim covers fewer NCC windows than this (area
+    # pi (2 selection.ncc_sigma)^2 each): photos of another picture pass the checks by chance on up to 4
     periodic: bool = True  # refuse pixels where the projected image repeats itself
     periodic_peak: float = 0.85  # autocorrelation peak (64 px windows) that marks a repeat
     coarse_peak: float = 0.93  # ... in the larger windows
@@ -176,6 +178,7 @@ class RefineConfig:
             "confidence.shrunk_sigma": self.confidence.shrunk_sigma,
             "align.trust_px": al.trust_px,
             "align.max_step": al.max_step,
+            "confidence.registered_windows": self.confidence.registered_windows,
         }
         for name, value in positive.items():
             if not value > 0:

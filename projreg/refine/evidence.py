@@ -28,15 +28,35 @@ def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, boun
     return (prior + d * scale[..., None]).astype(np.float32)
 
 
+def registers(claimed: np.ndarray, share: float, windows: float, sigma: float) -> bool:
+    """Whether a claim ``claimed`` (bool ``(H, W)``) is evidence enough to register the pair: at least
+    ``share`` of the frame and at least ``windows`` local-NCC windows of Gaussian ``sigma`` (px) of area
+    (``pi (2 sigma)^2`` each).
+
+    The checks are per pixel, read from windows of that size: on a photo of another picture they pass by
+    chance where two windows happen to look alike, on up to 4 windows' area of a frame (docs/model.md).
+    In a small frame that is several percent of it, so the count of windows, not the share, tells a
+    claim from chance there.
+
+    Example:
+        >>> claim = np.zeros((192, 256), bool); claim[:40, :60] = True  # 2,400 px, 4.9 % of the frame
+        >>> registers(claim, 0.01, 6.0, 7.0), registers(claim, 0.01, 6.0, 3.5)
+        (False, True)
+    """
+    count = int(claimed.sum())
+    return count >= share * claimed.size and count >= windows * np.pi * (2 * sigma) ** 2
+
+
 def unverified(claimed: np.ndarray, repeating: np.ndarray | None, textured: np.ndarray, share: float = 0.5) -> str:
     """Why a pair that passed no check is not registered: a repeating pattern when at least ``share`` of
     its texture repeats itself (no check can tell the right period from the next), else ``no region
-    verified``."""
+    verified`` (what passes the checks is too little to tell from chance: :func:`registers`)."""
     repeats = 0.0 if repeating is None or not textured.any() else float(repeating[textured].mean())
     if repeats >= share:
         period = "a flow one period off would pass every check"
         return f"repeating pattern: {100 * repeats:.0f}% of the projected texture repeats itself ({period})"
-    return f"no region verified ({100 * claimed.mean():.1f}%)"
+    passed = f"{100 * claimed.mean():.1f}% of the frame passes the checks"
+    return f"no region verified ({passed}, too little to tell from chance)"
 
 
 def repeating(

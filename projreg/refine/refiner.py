@@ -32,7 +32,8 @@ reads as the algorithm:
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
 8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface
    (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it.
-9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame; otherwise
+9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame and
+   ``registered_windows`` of the checks' windows (:func:`~projreg.refine.evidence.registers`); otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
 
 A pair longer than ``images.max_side`` runs stages 1-8 shrunk to it; with ``images.verify_full``
@@ -77,7 +78,7 @@ from .candidates import (
 )
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
-from .evidence import repeating, unverified
+from .evidence import registers, repeating, unverified
 from .selection import rivals, select
 from .workers import Workers
 
@@ -239,14 +240,14 @@ class GeometricRefiner:
         that is not (module docstring, stages 7 and 9)."""
         ctx, cfg, scores = search.ctx, self.config.confidence, search.scores
         net = [c for c in search.cands if c.hypothesis == "network"]
-        if (search.conf >= CONFIDENT).mean() < cfg.registered_above and net and search.best.hypothesis != "network":
+        if not self._registers(search.conf >= CONFIDENT) and net and search.best.hypothesis != "network":
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than another start's
             search.best = max(net, key=lambda c: scores[c.key])
             search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
         best, conf = search.best, search.conf
         claimed = conf >= CONFIDENT
-        registered = claimed.mean() >= cfg.registered_above
+        registered = self._registers(claimed)
         why = "" if registered else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
             conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers.dis_flows)
@@ -261,6 +262,11 @@ class GeometricRefiner:
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(best.flow, claimed if not why else np.zeros_like(claimed), not why, why)
         return pred, RefineInfo(best.hypothesis, best.label, scores, conf, ctx.share, tuple(search.stages))
+
+    def _registers(self, claimed: np.ndarray) -> bool:
+        """Whether ``claimed`` registers the pair (:func:`~projreg.refine.evidence.registers`)."""
+        cfg = self.config.confidence
+        return registers(claimed, cfg.registered_above, cfg.registered_windows, self.config.selection.ncc_sigma)
 
     def confidence(
         self,

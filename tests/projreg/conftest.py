@@ -28,6 +28,21 @@ def tiny_physical(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def small_physical(tmp_path_factory):
+    """:func:`tiny_physical`'s samples at 128 x 160: a frame of 64 x 96 holds about ten of the checks' windows,
+    too few for a claim to be told from chance (``confidence.registered_windows``), so what needs
+    registered pairs is measured on these."""
+    return make_shards(
+        tmp_path_factory.mktemp("small") / "physical",
+        size=(128, 160),
+        transforms="2,47,128",
+        seed=4,
+        split="test",
+        blend="physical",
+    )
+
+
+@pytest.fixture(scope="session")
 def tiny_val(tmp_path_factory):
     return make_shards(tmp_path_factory.mktemp("tiny") / "val", split="val", transforms="10,90")
 

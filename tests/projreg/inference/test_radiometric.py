@@ -41,8 +41,8 @@ def test_calibration_refuses_mismatched_photos():
         calibrate(np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8))
 
 
-def test_bench_photometric_beats_geometric_only(tiny_physical):
-    report = run_bench(tiny_physical, baselines=(), compensation=True, photometric=True)
+def test_bench_photometric_beats_geometric_only(small_physical):
+    report = run_bench(small_physical, baselines=(), compensation=True, photometric=True)
     model = report["results"][0]
     assert model["photo_psnr"] > model["geo_psnr"] and model["photo_de2000"] < model["geo_de2000"]
     assert report["results"][-1]["photo_psnr"] is None  # uncompensated: no photometric row

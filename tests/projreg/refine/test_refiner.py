@@ -452,10 +452,11 @@ def test_the_search_runs_only_where_the_direct_stage_leaves_texture_unverified(p
     assert pred.registered and np.linalg.norm(pred.flow - gt, axis=-1)[pred.claimed & valid].mean() < 0.3
 
 
-def test_a_photo_of_another_picture_claims_next_to_nothing():
+def test_a_photo_of_another_picture_claims_nothing():
     """The camera saw something else (scikit-image's pictures, bent and photographed here): whatever the
-    network says, every quality claims at most a few stray percent of the frame, and nothing of most pairs.
-    (Stray claims of 1-2 % on some pairs are a known limit of the per-pixel checks: docs/model.md.)"""
+    network says, no quality registers the pair or claims a pixel. The per-pixel checks pass by chance on a
+    few windows of such a pair (2.1 % of this small frame on the coffee picture): the verdict asks for more
+    windows than chance gives (``confidence.registered_windows``), and without that rule this fails."""
     data = pytest.importorskip("skimage.data")
     pictures = {
         n: cv2.resize(getattr(data, n)(), (256, 192), interpolation=cv2.INTER_AREA)
@@ -467,9 +468,7 @@ def test_a_photo_of_another_picture_claims_next_to_nothing():
         _, img1, _, _ = bent_pair(pictures[other], seed=5)
         for config in (FAST, BALANCED, ACCURATE):
             pred = GeometricRefiner(config).predict(img0, img1, net)
-            assert pred.claimed.mean() < 0.03, (other, config.search, pred.claimed.mean())
-            if other == "chelsea":
-                assert not pred.registered and not pred.claimed.any(), (config.search, pred.reason)
+            assert not pred.registered and not pred.claimed.any(), (other, config.search, pred.reason)
 
 
 def test_pairs_of_one_projected_image_share_its_side_and_answer_as_alone(picture, monkeypatch):
