@@ -337,8 +337,12 @@ def test_real_sources_script_writes_folders_that_gen_uses_whole(tmp_path):
     from projsynth.dataset.plan import resolve_plan
 
     script = Path(__file__).parents[3] / "bench" / "real_sources.py"
-    done = subprocess.run([sys.executable, str(script), "--out", str(tmp_path)], capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
+    for out in (tmp_path, tmp_path / "again"):
+        done = subprocess.run([sys.executable, str(script), "--out", str(out)], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+    for kind in ("natural", "generated"):  # the same pictures each time (binary_blobs draws at random unseeded)
+        for path in (tmp_path / kind).iterdir():
+            assert path.read_bytes() == (tmp_path / "again" / kind / path.name).read_bytes(), path.name
     natural = list_images(tmp_path / "natural", "--natural")
     generated = list_images(tmp_path / "generated", "--generated")
     assert (len(natural), len(generated)) == (12, 7)
