@@ -237,23 +237,25 @@ class GeometricRefiner:
 
     def _verdict(self, search: Search) -> tuple[Prediction, RefineInfo]:
         """Registered or not, and why; the bridge for a registered answer; the network's homography for one
-        that is not (module docstring, stages 7 and 9)."""
+        that verifies nothing (module docstring, stages 7 and 9). A claim too small to tell from chance
+        (:func:`~projreg.refine.evidence.registers`) is not registered and claims nothing, but where it covers
+        ``registered_above`` of the frame the search's answer stays the flow."""
         ctx, cfg, scores = search.ctx, self.config.confidence, search.scores
         net = [c for c in search.cands if c.hypothesis == "network"]
-        if not self._registers(search.conf >= CONFIDENT) and net and search.best.hypothesis != "network":
+        if (search.conf >= CONFIDENT).mean() < cfg.registered_above and net and search.best.hypothesis != "network":
             # nothing verified (e.g. content washed out by daylight): the scores carry no evidence,
             # so the answer stays with the network's hypothesis rather than another start's
             search.best = max(net, key=lambda c: scores[c.key])
             search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
         best, conf = search.best, search.conf
         claimed = conf >= CONFIDENT
-        registered = self._registers(claimed)
-        why = "" if registered else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
+        verified = claimed.mean() >= cfg.registered_above  # some region verified: the search's answer stands
+        why = "" if self._registers(claimed) else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
             conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers.dis_flows)
             claimed = conf >= CONFIDENT
             search.stages.append("bridge")
-        if why and search.network.H is not None:
+        if not verified and search.network.H is not None:
             # nothing verified: residuals fitted on images that carry no evidence only add noise, and the
             # homography of the network's own flow is the smoothest statement of its hypothesis
             best = Candidate("network", "homography", homography_flow(search.network.H, *ctx.shape), plane=True)
