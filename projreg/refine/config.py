@@ -131,7 +131,7 @@ class ConfidenceConfig:
     dense: float = 0.2  # texture density at which a neighbourhood counts fully
     registered_above: float = 0.01  # a pair whose claimed share is below this is not registered ...
     registered_windows: float = 6.0  # ... nor one whose claim covers fewer NCC windows than this (area
-    # pi (2 selection.ncc_sigma)^2 each): photos of another picture pass the checks by chance on up to 4
+    # pi (2 selection.ncc_sigma)^2 each): photos of another picture pass the checks by chance on up to 4 of them
     periodic: bool = True  # refuse pixels where the projected image repeats itself
     periodic_peak: float = 0.85  # autocorrelation peak (64 px windows) that marks a repeat
     coarse_peak: float = 0.93  # ... in the larger windows
