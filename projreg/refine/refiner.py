@@ -49,7 +49,6 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import cv2
@@ -64,22 +63,17 @@ from .candidates import (
     Candidate,
     RefineInfo,
     Start,
-    align_view,
-    aligned_plane,
     grown_start,
     identity_start,
     network_starts,
-    polish,
-    polish_views,
     realign,
-    refine_start,
-    sift_plane,
     sift_start,
 )
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
 from .evidence import registers, repeating, unverified
 from .selection import rivals, select
+from .stages import gather, stage, submit
 from .workers import Workers
 
 
@@ -191,9 +185,10 @@ class GeometricRefiner:
         one_stage = not direct and (cfg.search.escalate_below >= 1 or not first_views)
         if one_stage:  # every start on every view, in one stage
             second = self._second_starts(ctx, projected, captured, usable) if more else []
-            cands, stages = self._stage(ctx, first + second, views), ["network"] + (["more starts"] if more else [])
+            cands = stage(ctx, self._workers, first + second, views, False)
+            stages = ["network"] + (["more starts"] if more else [])
         else:
-            cands, stages = self._stage(ctx, first, first_views, direct), ["network"]
+            cands, stages = stage(ctx, self._workers, first, first_views, direct), ["network"]
         search = Search(ctx, network, cands, {}, stages)
         if measure:
             ctx.side.repeats = pending.result()
@@ -207,11 +202,11 @@ class GeometricRefiner:
                 rest = views
             # SIFT's start is found on the pool while the finer start's views are refined beside it
             found = self._workers.submit(self._second_starts, ctx, projected, captured, usable) if more else None
-            refining = self._submit(ctx, first, rest)
+            refining = submit(ctx, self._workers, first, rest)
             second = found.result() if found else []
             if direct:  # an aligned answer that did not verify the frame is not kept as a rival of DIS's
                 search.cands, direct = [], False
-            search.cands += self._gather(ctx, first, refining) + self._stage(ctx, second, views)
+            search.cands += gather(ctx, first, refining) + stage(ctx, self._workers, second, views, False)
             search.stages.append("more starts")
             self._reselect(search)
         # an aligned first stage that verified what ``settle_at`` asks: nothing left to grow or re-align
@@ -219,7 +214,7 @@ class GeometricRefiner:
         grow = cfg.search.grow and not settled
         grown = grown_start(ctx, search.best.flow, search.conf >= CONFIDENT) if grow else None
         if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
-            search.cands += self._stage(ctx, [grown], first_views if direct else views, direct)
+            search.cands += stage(ctx, self._workers, [grown], first_views if direct else views, direct)
             search.stages.append("grown")
             self._reselect(search)
         if cfg.align.realign and (search.best.polished or not settled):  # DIS's noise under the spline
@@ -300,64 +295,6 @@ class GeometricRefiner:
             flow = resize_flow(np.asarray(flow, np.float32), projected.shape)
         ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
         return ctx.score("flow", np.asarray(flow, np.float32))
-
-    def _stage(self, ctx: PairContext, starts: list[Start], views: list[str], direct: bool = False) -> list[Candidate]:
-        """Every start refined on each of ``views`` (:meth:`_refined`), or, ``direct``, aligned on them
-        (:meth:`_aligned`); each candidate scored."""
-        if direct:
-            return self._aligned(ctx, starts, views)
-        return self._gather(ctx, starts, self._submit(ctx, starts, views))
-
-    def _submit(self, ctx: PairContext, starts: list[Start], views: list[str]) -> list[Future]:
-        """DIS's refinement of every start on each of ``views`` (the albedo view from the network's and SIFT's
-        starts only), submitted to the pool, views then starts."""
-        jobs = [(s, view) for view in views for s in starts if s.H is not None]
-        jobs = [(s, view) for s, view in jobs if not (view == "albedo" and s.name == "identity")]
-        return [self._workers.submit(self._refined, ctx, *job) for job in jobs]
-
-    def _gather(self, ctx: PairContext, starts: list[Start], submitted: list[Future]) -> list[Candidate]:
-        """The candidates of what :meth:`_submit` returned for ``starts``, in a fixed order: the refined
-        candidates, then the planes, then SIFT's homography alone."""
-        done = [job.result() for job in submitted]
-        out = [c for group in done for c in group if not c.plane] + [c for group in done for c in group if c.plane]
-        for s in starts:
-            if s.name == "sift":
-                plane = sift_plane(s)
-                ctx.score(plane.key, plane.flow)
-                out.append(plane)
-        return out
-
-    def _refined(self, ctx: PairContext, start: Start, view: str) -> list[Candidate]:
-        cands = refine_start(ctx, self._workers.dis(), start, view)
-        for c in cands:
-            ctx.ncc(c.key, c.flow)  # the score's map, computed on this thread
-        return cands
-
-    def _aligned(self, ctx: PairContext, starts: list[Start], views: list[str]) -> list[Candidate]:
-        """Every start aligned directly on each of ``views`` side by side on the pool; each alignment's polishes
-        and refitted plane are tasks of their own, submitted as it is done, so both threads stay busy. In a
-        fixed order: each alignment followed by its polishes, then the planes."""
-        jobs = [(s, view) for view in views for s in starts if s.H is not None]
-        aligning = [self._workers.submit(self._scored, align_view, ctx, s, view) for s, view in jobs]
-        finishing = []
-        for (s, view), job in zip(jobs, aligning, strict=True):
-            alignment = job.result()
-            polishing = [self._workers.submit(self._polished, ctx, s, alignment, on) for on in polish_views(ctx, view)]
-            plane = self._workers.submit(self._scored, aligned_plane, ctx, s, alignment)
-            finishing.append((alignment, polishing, plane))
-        out = [c for alignment, polishing, _ in finishing for c in [alignment] + [job.result() for job in polishing]]
-        return out + [plane for *_, job in finishing if (plane := job.result()) is not None]
-
-    def _polished(self, ctx: PairContext, start: Start, alignment: Candidate, view: str) -> Candidate:
-        return self._scored(polish, ctx, self._workers.dis(), start, alignment, view)
-
-    @staticmethod
-    def _scored(make: Callable[..., Candidate | None], ctx: PairContext, *args) -> Candidate | None:
-        """``make(ctx, *args)``, with its score's map computed on this thread."""
-        cand = make(ctx, *args)
-        if cand is not None:
-            ctx.ncc(cand.key, cand.flow)
-        return cand
 
     def _second_starts(
         self, ctx: PairContext, projected: np.ndarray, captured: np.ndarray, usable: bool
