@@ -130,7 +130,7 @@ class ConfidenceConfig:
     coarse_sparse: float = 0.1  # ... the coarse one (twice the radius) and the bridge's (four times)
     dense: float = 0.2  # texture density at which a neighbourhood counts fully
     registered_above: float = 0.01  # a pair whose claimed share is below this is not registered ...
-    registered_windows: float = 6.0  # ... nor one whose claim covers fewer NCC windows than this (area
+    registered_windows: float = 6.0  # ... nor one whose claim covers fewer NCC windows than this (0: none; area
     # pi (2 selection.ncc_sigma)^2 each): photos of another picture pass the checks by chance on up to 4 of them
     periodic: bool = True  # refuse pixels where the projected image repeats itself
     periodic_peak: float = 0.85  # autocorrelation peak (64 px windows) that marks a repeat
@@ -178,7 +178,6 @@ class RefineConfig:
             "confidence.shrunk_sigma": self.confidence.shrunk_sigma,
             "align.trust_px": al.trust_px,
             "align.max_step": al.max_step,
-            "confidence.registered_windows": self.confidence.registered_windows,
         }
         for name, value in positive.items():
             if not value > 0:
@@ -194,6 +193,10 @@ class RefineConfig:
             raise ProjregError(f"refine search.sift_side must be >= {MIN_SIDE} or None, got {se.sift_side}")
         if se.workers < 1:
             raise ProjregError(f"refine search.workers must be >= 1, got {se.workers}")
+        if not self.confidence.registered_windows >= 0:
+            raise ProjregError(
+                f"refine confidence.registered_windows must be >= 0, got {self.confidence.registered_windows}"
+            )
         for name in ("plane_margin", "plane_agree_px"):
             if not getattr(self.selection, name) >= 0:
                 raise ProjregError(f"refine selection.{name} must be >= 0, got {getattr(self.selection, name)}")

@@ -22,6 +22,7 @@ from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUA
         ({"selection": {"plane_margin": -0.1}}, "selection.plane_margin"),
         ({"selection": {"plane_agree_px": -1.0}}, "selection.plane_agree_px"),
         ({"confidence": {"radius": 0}}, "confidence.radius"),
+        ({"confidence": {"registered_windows": -1.0}}, "confidence.registered_windows"),
     ],
 )
 def test_a_bad_value_is_refused_naming_its_section_and_field(sections, message):
