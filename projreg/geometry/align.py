@@ -6,8 +6,9 @@ Each step linearises the warped image in the control values (the gradient is the
 image's and the warped image's, as in efficient second-order minimisation), weights the pixels by their
 texture and a Cauchy function of their residual (scale: the residuals' median absolute deviation), and
 solves the normal equations with a second-difference penalty on the control grid (a P-spline: where the
-images carry no texture the surface is bridged smoothly) and a small ridge. The tensor-product basis
-makes the normal equations separable: three image products and a few small matrix products per step.
+images carry no texture the surface is bridged smoothly) and a small ridge. The per-pixel work is one
+fused pass (:mod:`~projreg.geometry.linearised`); the normal equations are summed span by span over the
+basis' local support (:mod:`~projreg.geometry.gram`).
 Coarse levels see displacements of several pixels; the finest closes the last tenth of a pixel.
 
 Convention: gray images float32 ``(H, W)`` on the projected grid (projected) and the captured grid
@@ -23,8 +24,9 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from .gram import gram
+from .linearised import linearise
 from .splines import bspline_basis, one_blas_thread
-from .warp import pixel_maps
 
 
 @dataclass(frozen=True)
@@ -66,13 +68,10 @@ def _gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=16)
-def _basis(h: int, w: int, grid: tuple[int, int]) -> tuple[np.ndarray, ...]:
-    """``By`` ``(h, ky)``, ``Bx`` ``(w, kx)`` and their row-wise outer products ``(h, ky ky)``, ``(w, kx kx)``."""
+def _basis(h: int, w: int, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``By`` ``(h, ky)`` and ``Bx`` ``(w, kx)``."""
     kx, ky = grid
-    By, Bx = bspline_basis(h, ky), bspline_basis(w, kx)
-    byy = (By[:, :, None] * By[:, None, :]).reshape(h, ky * ky)
-    bxx = (Bx[:, :, None] * Bx[:, None, :]).reshape(w, kx * kx)
-    return By, Bx, byy, bxx
+    return bspline_basis(h, ky), bspline_basis(w, kx)
 
 
 @lru_cache(maxsize=8)
@@ -87,7 +86,7 @@ def _penalty(grid: tuple[int, int]) -> np.ndarray:
 def spline_field(control: np.ndarray, h: int, w: int) -> np.ndarray:
     """The B-spline of ``control`` ``(ky, kx, 2)`` on an ``h x w`` grid, float32 ``(h, w, 2)``."""
     ky, kx = control.shape[:2]
-    By, Bx = _basis(h, w, (kx, ky))[:2]
+    By, Bx = _basis(h, w, (kx, ky))
     return np.stack([By @ control[..., i] @ Bx.T for i in range(2)], axis=-1).astype(np.float32)
 
 
@@ -134,29 +133,15 @@ def _step(
     kx, ky = grid
     k = kx * ky
     h, w = level.projected.shape
-    By, Bx, byy, bxx = _basis(h, w, grid)
+    By, Bx = _basis(h, w, grid)
     s = level.scale
-    flow = start + spline_field(control, h, w) * s
-    x, y = pixel_maps(h, w)
-    mx, my = x + flow[..., 0], y + flow[..., 1]
-    captured = level.captured
-    warped = cv2.remap(captured, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    inside = (mx >= 0) & (my >= 0) & (mx <= captured.shape[1] - 1) & (my <= captured.shape[0] - 1)
-    r = warped - level.projected
-    gx, gy = _gradient(warped)
-    gx = (gx + level.gradient[0]) * (0.5 * s)  # d r / d control, control in finest-level pixels
-    gy = (gy + level.gradient[1]) * (0.5 * s)
-    weight = level.weight * inside
-    textured = weight > 0.5
-    scale = 1.4826 * float(np.median(np.abs(r[textured]))) + 1e-3 if textured.any() else 1.0
-    weight = weight / (1 + (r / scale) ** 2)
+    columns = np.stack([control[..., i] @ Bx.T for i in range(2)]) * s  # [2, ky, w], this level's pixels
+    products = np.empty((5, h, w))  # [5, h, w]: w gx gx, w gx gy, w gy gy, w gx r, w gy r
+    linearise(level.projected, level.captured, level.gradient, level.weight, start, By, columns, 0.5 * s, products)
     with one_blas_thread():
-        normal = np.empty((2 * k, 2 * k))
-        normal[:k, :k] = _normal_block(weight * gx * gx, byy, bxx, grid)
-        normal[:k, k:] = _normal_block(weight * gx * gy, byy, bxx, grid)
-        normal[k:, :k] = normal[:k, k:].T
-        normal[k:, k:] = _normal_block(weight * gy * gy, byy, bxx, grid)
-        rhs = np.concatenate([(By.T @ (weight * g * r) @ Bx).ravel() for g in (gx, gy)])
+        blocks = gram(h, w, grid).blocks(products[:3])  # [3, k, k]
+        normal = np.block([[blocks[0], blocks[1]], [blocks[1].T, blocks[2]]])
+        rhs = np.concatenate([(By.T @ products[i] @ Bx).ravel() for i in (3, 4)])
     current = np.concatenate([control[..., 0].ravel(), control[..., 1].ravel()])
     penalty = np.kron(np.eye(2), reg * (np.trace(normal) / (2 * k) + 1e-9))
     delta = np.linalg.solve(normal + penalty, -rhs - penalty @ current)
@@ -164,11 +149,3 @@ def _step(
     if reach > max_step:
         delta *= max_step / reach
     return np.stack([delta[:k].reshape(ky, kx), delta[k:].reshape(ky, kx)], axis=-1)
-
-
-def _normal_block(product: np.ndarray, byy: np.ndarray, bxx: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """``sum_p product(p) B_i(p) B_j(p)`` over the tensor-product basis, ``(K, K)``, rows and columns
-    ``(y index, x index)``."""
-    kx, ky = grid
-    block = (byy.T @ (product.astype(np.float64) @ bxx)).reshape(ky, ky, kx, kx)  # [i, k, j, l]
-    return block.transpose(0, 2, 1, 3).reshape(kx * ky, kx * ky)
