@@ -34,8 +34,21 @@ from ..errors import ProjregError
 
 BUCKETS = ("s0-10", "s10-40", "s40+")
 THRESHOLDS = (1, 3, 5)
-KEYS = ("epe", *BUCKETS, *(f"px{t}" for t in THRESHOLDS), "image_epe", "pixels", "images",
-        "pair_median", "pair_p90", "worst_epe", "worst_id", "claimed", "claimed_mean", "epe_claimed")
+KEYS = (
+    "epe",
+    *BUCKETS,
+    *(f"px{t}" for t in THRESHOLDS),
+    "image_epe",
+    "pixels",
+    "images",
+    "pair_median",
+    "pair_p90",
+    "worst_epe",
+    "worst_id",
+    "claimed",
+    "claimed_mean",
+    "epe_claimed",
+)
 
 
 def epe_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:

@@ -12,6 +12,8 @@ import math
 import cv2
 import numpy as np
 
+from projsynth.utils.jit import jit
+
 
 def proper_homography(H: np.ndarray, height: int, width: int) -> bool:
     """Whether ``H`` keeps the whole ``height x width`` frame on one side of the line at infinity."""
@@ -25,15 +27,19 @@ def homography_flow(H: np.ndarray, height: int, width: int) -> np.ndarray:
     """Dense flow ``H(p) - p`` on a ``height x width`` grid, ``H`` mapping projected to captured pixels.
 
     Returns:
-        float32 ``(height, width, 2)``, forward, projected -> captured, pixels.
+        float32 ``(height, width, 2)``, forward, projected -> captured, pixels (computed in float64).
     """
-    H = np.asarray(H, np.float64)
-    x = np.arange(width, dtype=np.float64)[None, :]  # [1, W]
-    y = np.arange(height, dtype=np.float64)[:, None]  # [H, 1]
-    den = H[2, 0] * x + (H[2, 1] * y + H[2, 2])  # [H, W]
+    return _homography_flow(np.asarray(H, np.float64), height, width)
+
+
+@jit
+def _homography_flow(H, height, width):  # pragma: no cover - numba
     flow = np.empty((height, width, 2), np.float32)
-    flow[..., 0] = (H[0, 0] * x + (H[0, 1] * y + H[0, 2])) / den - x
-    flow[..., 1] = (H[1, 0] * x + (H[1, 1] * y + H[1, 2])) / den - y
+    for y in range(height):
+        for x in range(width):
+            den = H[2, 0] * x + (H[2, 1] * y + H[2, 2])
+            flow[y, x, 0] = (H[0, 0] * x + (H[0, 1] * y + H[0, 2])) / den - x
+            flow[y, x, 1] = (H[1, 0] * x + (H[1, 1] * y + H[1, 2])) / den - y
     return flow
 
 

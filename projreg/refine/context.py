@@ -7,12 +7,15 @@ projected -> captured, pixels.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+
+from projsynth.utils.jit import jit
 
 from ..geometry.align import Level, pyramid
 from ..geometry.homography import fit_step
@@ -35,9 +38,18 @@ DisFlows = Callable[[list[tuple[np.ndarray, np.ndarray]]], list[np.ndarray]]  # 
 
 
 def flow_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per-pixel distance (px) between two flows, float32 ``(H, W)``."""
-    d = a - b
-    return np.hypot(d[..., 0], d[..., 1])
+    """Per-pixel distance (px) between two float32 flows, float32 ``(H, W)``."""
+    return _flow_distance(a, b)
+
+
+@jit
+def _flow_distance(a, b):  # pragma: no cover - numba
+    h, w = a.shape[:2]
+    out = np.empty((h, w), np.float32)
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = math.hypot(a[y, x, 0] - b[y, x, 0], a[y, x, 1] - b[y, x, 1])
+    return out
 
 
 @dataclass

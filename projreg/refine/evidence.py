@@ -5,10 +5,13 @@ verified.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import cv2
 import numpy as np
+
+from projsynth.utils.jit import jit
 
 from ..geometry.images import weighted_ncc
 from ..geometry.warp import warp_back
@@ -22,10 +25,22 @@ def bound_outside(flow: np.ndarray, prior: np.ndarray, support: np.ndarray, boun
         >>> bound_outside(f, np.zeros_like(f), np.array([[False, False]]), 5.0)[0].tolist()
         [[3.0, 4.0], [1.0, 0.0]]
     """
-    d = flow - prior  # [H, W, 2]
-    n = np.hypot(d[..., 0], d[..., 1])  # [H, W]
-    scale = np.where(support, 1.0, np.minimum(1.0, bound / np.maximum(n, 1e-6))).astype(np.float32)
-    return (prior + d * scale[..., None]).astype(np.float32)
+    return _bound_outside(flow.astype(np.float32, copy=False), prior.astype(np.float32, copy=False), support, bound)
+
+
+@jit
+def _bound_outside(flow, prior, support, bound):  # pragma: no cover - numba
+    h, w = flow.shape[:2]
+    out = np.empty((h, w, 2), np.float32)
+    limit, one, tiny = np.float32(bound), np.float32(1.0), np.float32(1e-6)  # float32 throughout
+    for y in range(h):
+        for x in range(w):
+            du = flow[y, x, 0] - prior[y, x, 0]
+            dv = flow[y, x, 1] - prior[y, x, 1]
+            scale = one if support[y, x] else min(one, limit / max(math.hypot(du, dv), tiny))
+            out[y, x, 0] = prior[y, x, 0] + du * scale
+            out[y, x, 1] = prior[y, x, 1] + dv * scale
+    return out
 
 
 def registers(claimed: np.ndarray, share: float, windows: float, sigma: float) -> bool:

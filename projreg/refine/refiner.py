@@ -204,9 +204,10 @@ class GeometricRefiner:
             found = self._workers.submit(self._second_starts, ctx, projected, captured, usable) if more else None
             refining = submit(ctx, self._workers, first, rest)
             second = found.result() if found else []
+            refining_second = submit(ctx, self._workers, second, views)  # queued before the first are gathered
             if direct:  # an aligned answer that did not verify the frame is not kept as a rival of DIS's
                 search.cands, direct = [], False
-            search.cands += gather(ctx, first, refining) + stage(ctx, self._workers, second, views, False)
+            search.cands += gather(ctx, first, refining) + gather(ctx, second, refining_second)
             search.stages.append("more starts")
             self._reselect(search)
         # an aligned first stage that verified what ``settle_at`` asks: nothing left to grow or re-align

@@ -589,5 +589,3 @@ class _Interval:
         if reset:
             self._reset()
         return row
-
-

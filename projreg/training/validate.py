@@ -20,8 +20,14 @@ def predict_flow(model: torch.nn.Module, img0: np.ndarray, img1: np.ndarray, dev
 
 
 @torch.no_grad()
-def evaluate(model: torch.nn.Module, dataset: ShardDataset, *, device: torch.device, limit: int | None = None,
-             progress: Callable[[int, int], None] | None = None) -> dict:
+def evaluate(
+    model: torch.nn.Module,
+    dataset: ShardDataset,
+    *,
+    device: torch.device,
+    limit: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict:
     """Pooled metrics of the last prediction over ``limit`` samples spread evenly (all if None);
     ``progress(done, total)`` before the first sample and after each."""
     model.eval()
