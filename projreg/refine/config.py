@@ -226,9 +226,10 @@ class Quality:
 
 
 # ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and
-# the plain images and polished by DIS (the plain alignment also on the albedo view); where that leaves
-# more than 15 % of the visible texture unverified, the network again at up to 512 px and ``accurate``'s
-# search from it; a pair larger than 512 px is searched shrunk to 512 px and its answer verified at its
+# the plain images and polished by DIS (the plain alignment also on the albedo view); where that verifies
+# less than half of the visible texture, the network again at up to 512 px and ``accurate``'s search from
+# it (a first stage that verifies more has found the frame's basin: its verified plane grows over the
+# rest, and it is re-aligned, below 85 %); a pair larger than 512 px is searched shrunk to 512 px and its answer verified at its
 # own size (the estimator's cost grows with the pixels, the network's with their square).
 # ``accurate``: every start on every view, the network at up to 1024 px, the winner re-aligned
 # directly. ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
@@ -238,7 +239,7 @@ ACCURATE = RefineConfig()
 BALANCED = ACCURATE.with_sections(
     images={"max_side": 512, "verify_full": True},
     align={"direct": True, "views": ("normalised", "plain")},
-    search={"escalate_below": 0.85, "settle_at": 0.85},
+    search={"escalate_below": 0.5, "settle_at": 0.85},
 )
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),
