@@ -229,8 +229,9 @@ class Quality:
 # the plain images and polished by DIS (the plain alignment also on the albedo view); where that verifies
 # less than half of the visible texture, the network again at up to 512 px and ``accurate``'s search from
 # it (a first stage that verifies more has found the frame's basin: its verified plane grows over the
-# rest, and it is re-aligned, below 85 %); a pair larger than 512 px is searched shrunk to 512 px and its answer verified at its
-# own size (the estimator's cost grows with the pixels, the network's with their square).
+# rest, and it is re-aligned, below 85 %); a pair larger than 512 px is searched shrunk to 512 px and
+# its answer verified at its own size (the estimator's cost grows with the pixels, the network's with
+# their square).
 # ``accurate``: every start on every view, the network at up to 1024 px, the winner re-aligned
 # directly. ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
 # the fit's pixel parameters halved, no detail level, periodicity test, albedo view or bridge. Their
