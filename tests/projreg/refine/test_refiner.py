@@ -516,3 +516,36 @@ def test_a_refiner_used_before_a_fork_still_refines_in_the_child(samples):
         child.kill()
         child.join()
     np.testing.assert_array_equal(here, there)
+
+
+def test_balanced_searches_other_starts_only_where_its_first_stage_verified_less_than_half(picture):
+    """Something else in front of the wall hides the left of the camera's view (another picture pasted
+    over the captured image). Hiding a third, the first stage verifies about two thirds of the visible
+    texture: ``balanced`` keeps its answer (grown from the verified plane) and never asks for the finer
+    flow or other starts, whose search changed such answers for the worse more often than for the better
+    (docs/history/2026-12-02-fused-alignment.md), and claims the visible part, right. Hiding half, it
+    verifies under half and searches."""
+    projected, captured, flow, valid = bent_pair(picture, amp=8.0, period=300.0)
+    other = cv2.resize(render_procedural("natural", "forest", (192, 256), np.random.default_rng(3)), (256, 192))
+    network = flow + np.random.default_rng(1).normal(0, 1.0, flow.shape).astype(np.float32)
+    runs = {}
+    for hidden in (90, 130):
+        seen = captured.copy()
+        seen[:, :hidden] = other[:, :hidden]
+        asked = []
+
+        def finer(asked=asked) -> np.ndarray:
+            asked.append(True)
+            return network
+
+        pred, info = GeometricRefiner(BALANCED).predict_info(projected, seen, network, finer=finer)
+        runs[hidden] = (pred, info.stages, bool(asked))
+    (third, stages, asked), (_, half_stages, half_asked) = runs.values()
+    assert "more starts" not in stages and not asked, stages
+    visible = np.arange(flow.shape[1])[None, :] + flow[..., 0] >= 100  # [H, W]: lands clear of the occluder
+    errors = np.linalg.norm(third.flow - flow, axis=-1)[third.claimed & valid & visible]
+    assert third.registered and third.claimed.mean() > 0.5 and errors.mean() < 0.5, (
+        third.claimed.mean(),
+        errors.mean(),
+    )
+    assert "more starts" in half_stages and half_asked, half_stages
