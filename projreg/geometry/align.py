@@ -98,6 +98,7 @@ def align(
     bend: float,
     ridge: float,
     max_step: float = 1.0,
+    tolerance: float = 0.0,
 ) -> np.ndarray:
     """The flow ``base + spline`` aligning the pair of ``levels`` (:func:`pyramid`), coarse to fine.
 
@@ -110,6 +111,8 @@ def align(
         ridge: pull of every control value towards 0, relative likewise.
         max_step: the most one step moves a control value, in pixels of its level (a step that would
             move one farther is shortened): the linearisation holds about a pixel.
+        tolerance: a level stops before its steps are spent once a step moves no control value farther
+            than this, in pixels of its level (0: every step is taken).
 
     Returns:
         float32 ``(H, W, 2)``: ``base`` plus the fitted spline.
@@ -122,7 +125,10 @@ def align(
         h, w = level.projected.shape
         start = base if factor == 1 else cv2.resize(base, (w, h), interpolation=cv2.INTER_AREA) * level.scale
         for _ in range(iterations[factor]):
-            control = control + _step(level, start, control, grid, reg, max_step)
+            delta = _step(level, start, control, grid, reg, max_step)
+            control = control + delta
+            if float(np.abs(delta).max()) * level.scale < tolerance:  # converged at this level
+                break
     return base + spline_field(control, *base.shape[:2])
 
 

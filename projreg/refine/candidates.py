@@ -195,12 +195,12 @@ def align_view(ctx: PairContext, start: Start, view: str) -> Candidate:
 
 
 def polish_views(ctx: PairContext, view: str) -> tuple[str, ...]:
-    """The views an alignment on ``view`` is polished on (:func:`polish`): none with ``align.polish`` off;
-    its own, and for the plain images' also the albedo view (the same images with the wall's
-    reflectance divided out) when ``images.albedo`` is on."""
-    if not ctx.config.align.polish:
-        return ()
-    return (view, "albedo") if view == "plain" and ctx.config.images.albedo else (view,)
+    """The views an alignment on ``view`` is polished on (:func:`polish`), of ``align.polish``: its own
+    view where named, and for the plain images' alignment the albedo view (the same images with the
+    wall's reflectance divided out) where named and ``images.albedo`` is on."""
+    named = ctx.config.align.polish
+    own = (view,) if view in named and view != "albedo" else ()
+    return own + (("albedo",) if view == "plain" and "albedo" in named and ctx.config.images.albedo else ())
 
 
 def polish(ctx: PairContext, dis: cv2.DISOpticalFlow, start: Start, alignment: Candidate, view: str) -> Candidate:
@@ -265,9 +265,12 @@ def aligned(ctx: PairContext, view: str, start: np.ndarray) -> np.ndarray:
     size (``align.detail``): :func:`~projreg.geometry.align.align`."""
     al, sf = ctx.config.align, ctx.config.surface
     levels = ctx.pyramid(view)
-    flow = align(levels, start, sf.grid, dict(zip(al.levels, al.steps, strict=True)), al.bend, al.ridge, al.max_step)
+    steps = dict(zip(al.levels, al.steps, strict=True))
+    flow = align(levels, start, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance)
     if al.detail:
-        flow = align(levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, al.ridge, al.max_step)
+        flow = align(
+            levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, al.ridge, al.max_step, al.tolerance
+        )
     return flow
 
 

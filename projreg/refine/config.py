@@ -54,16 +54,22 @@ class AlignConfig:
     direct: bool = False  # the first stage aligns the network's start directly, no DIS; the DIS search of
     # every start and view follows only when it claims less than search.escalate_below of the texture
     views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct ...
-    polish: bool = True  # ... each alignment also polished by the surface model of DIS's residual on it
+    polish: tuple[str, ...] = (
+        "normalised",
+        "albedo",
+    )  # ... the views whose DIS residual also polishes an alignment (its
+    # surface model added): "normalised" or "plain" that view's own, "albedo" the plain one's with the wall's
+    # reflectance divided out (a painted or brick wall moves with neither image); () none
     from_surface: bool = False  # ... each from its start's smooth surface (homography + bend_start P-spline
     # of the rest of its flow) instead of its homography: a tracked frame's, whose start is the last answer
     levels: tuple[int, ...] = (4, 2, 1)  # pyramid factors, coarsest first
     steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level
     max_step: float = 1.0  # the most one step moves a control value, in pixels of its level
+    tolerance: float = 0.02  # a level's steps stop once one moves no control value farther (px of the level)
     bend: float = 0.01  # second-difference penalty of the coarse grid (surface.grid), relative
     ridge: float = 1e-4  # pull of every control value towards 0, relative
     detail: bool = True  # then align the fine grid (surface.detail_grid) at full size ...
-    detail_steps: int = 3  # ... with this many steps
+    detail_steps: int = 6  # ... with at most this many steps (align.tolerance stops it earlier)
     detail_bend: float = 0.1  # ... and this second-difference penalty, relative
 
 
@@ -182,6 +188,10 @@ class RefineConfig:
         for name, value in positive.items():
             if not value > 0:
                 raise ProjregError(f"refine {name} must be > 0, got {value}")
+        if not al.tolerance >= 0:
+            raise ProjregError(f"refine align.tolerance must be >= 0, got {al.tolerance}")
+        if unknown := set(al.polish) - {"normalised", "plain", "albedo"}:
+            raise ProjregError(f"refine align.polish names views normalised, plain, albedo; got {sorted(unknown)}")
         if im.max_side is not None and im.max_side < MIN_SIDE:
             raise ProjregError(f"refine images.max_side must be >= {MIN_SIDE}, got {im.max_side}")
         if im.albedo and (im.albedo_window < 3 or im.albedo_window % 2 == 0):
@@ -226,7 +236,8 @@ class Quality:
 
 
 # ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and
-# the plain images and polished by DIS (the plain alignment also on the albedo view); where that verifies
+# the plain images, the normalised alignment polished by DIS on its view and the plain one on the albedo
+# view (each alignment's steps stop once they no longer move it, ``align.tolerance``); where that verifies
 # less than half of the visible texture, the network again at up to 512 px and ``accurate``'s search from
 # it (a first stage that verifies more has found the frame's basin: its verified plane grows over the
 # rest, and it is re-aligned, below 85 %); a pair larger than 512 px is searched shrunk to 512 px and
@@ -244,7 +255,7 @@ BALANCED = ACCURATE.with_sections(
 )
 FAST = RefineConfig(
     images=ImagesConfig(max_side=256, plain=False, albedo=False),
-    align=AlignConfig(direct=True, realign=False, detail=False, polish=False),
+    align=AlignConfig(direct=True, realign=False, detail=False, polish=()),
     fit=FitConfig(ransac_px=1.0, refit_px=0.5, fit_points=3072),
     surface=SurfaceConfig(robust_px=0.5, free_px=8.0, detail=False),
     search=SearchConfig(identity=False, sift=False, escalate_below=0.0),

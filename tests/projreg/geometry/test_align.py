@@ -73,6 +73,25 @@ def test_align_recovers_a_bent_homography_from_a_start_pixels_off(amp):
     assert np.abs(seen - ref)[inner].mean() < 3.0
 
 
+def test_a_tolerance_stops_steps_only_once_they_no_longer_move_the_answer():
+    """With ``tolerance`` a level stops once a step moves no control value that far: from a start pixels
+    off it still closes the distance (unlike one step a level), and ends where all the steps would have."""
+    h, w = 192, 256
+    projected = textured(h, w)
+    truth = bent(h, w, 4.0)
+    captured = capture(projected, truth)
+    n0, n1 = normalize_contrast(projected, 8.0), normalize_contrast(captured, 8.0)
+    levels = pyramid(n0, n1, texture_weight(projected, 256.0), (4, 2, 1))
+    off = homography_flow(H_TRUE @ np.array([[1, 0, 3.0], [0, 1, -2.5], [0, 0, 1]]), h, w)
+    every = align(levels, off, (6, 5), {4: 40, 2: 40, 1: 40}, 0.01, 1e-4)
+    early = align(levels, off, (6, 5), {4: 40, 2: 40, 1: 40}, 0.01, 1e-4, tolerance=0.02)
+    once = align(levels, off, (6, 5), {4: 1, 2: 1, 1: 1}, 0.01, 1e-4)
+    inner = (slice(12, -12), slice(12, -12))
+    gap = np.linalg.norm(early - every, axis=-1)[inner]
+    err, err_once = (np.linalg.norm(f - truth, axis=-1)[inner].mean() for f in (early, once))
+    assert gap.max() < 0.1 and err < 0.3 < err_once, (gap.max(), err, err_once)
+
+
 def test_align_without_texture_stays_at_its_start():
     h, w = 96, 128
     flat = np.full((h, w), 120, np.uint8)

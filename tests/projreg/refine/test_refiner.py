@@ -124,7 +124,11 @@ def test_content_on_one_side_is_not_extrapolated_across_the_frame(picture):
     pred, info = GeometricRefiner().predict_info(img0, img1, net)
     err, err_net = (np.linalg.norm(f - gt, axis=-1) for f in (pred.flow, net))
     assert pred.registered and info.evidence < 0.45
-    assert err[valid].mean() < err_net[valid].mean(), (err[valid].mean(), err_net[valid].mean())
+    on_content = valid & textured  # the refinement measures the content; beyond it, it is held near the network
+    assert err[on_content].mean() < 0.5 * err_net[on_content].mean(), (
+        err[on_content].mean(),
+        err_net[on_content].mean(),
+    )
     far = valid & (np.arange(256) >= 150)[None, :]  # more than 50 px from any texture: no evidence
     assert err[far].max() <= err_net[far].max() + 16.0 + 1e-3  # within free_px of the network there
     claimed = pred.claimed & valid
