@@ -49,9 +49,7 @@ class TrackConfig:
     floor: float = 0.2  # ... as does one below this
     views: tuple[str, ...] = ("normalised",)  # a tracked frame is aligned on these views only ...
     from_surface: bool = True  # ... from the last answer's smooth surface (its bend), not its homography ...
-    polish: tuple[
-        str, ...
-    ] = ()  # ... and not polished by DIS (it only adds DIS's noise to a bend already in the start)
+    polish: tuple[str, ...] = ()  # ... and not polished by DIS (it adds DIS's noise to a bend already in the start)
 
 
 class Tracker:

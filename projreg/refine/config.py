@@ -54,16 +54,13 @@ class AlignConfig:
     direct: bool = False  # the first stage aligns the network's start directly, no DIS; the DIS search of
     # every start and view follows only when it claims less than search.escalate_below of the texture
     views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct ...
-    polish: tuple[str, ...] = (
-        "normalised",
-        "albedo",
-    )  # ... the views whose DIS residual also polishes an alignment (its
-    # surface model added): "normalised" or "plain" that view's own, "albedo" the plain one's with the wall's
-    # reflectance divided out (a painted or brick wall moves with neither image); () none
+    polish: tuple[str, ...] = ("normalised", "albedo")  # ... and polished by DIS's residual on these views:
+    # "normalised" or "plain" that view's alignment, "albedo" the plain one's with the wall's reflectance
+    # divided out (a painted or brick wall moves with neither image); () none
     from_surface: bool = False  # ... each from its start's smooth surface (homography + bend_start P-spline
     # of the rest of its flow) instead of its homography: a tracked frame's, whose start is the last answer
     levels: tuple[int, ...] = (4, 2, 1)  # pyramid factors, coarsest first
-    steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level
+    steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level, at most (align.tolerance)
     max_step: float = 1.0  # the most one step moves a control value, in pixels of its level
     tolerance: float = 0.02  # a level's steps stop once one moves no control value farther (px of the level)
     bend: float = 0.01  # second-difference penalty of the coarse grid (surface.grid), relative
