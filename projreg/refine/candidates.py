@@ -136,7 +136,7 @@ def sift_start(ctx: PairContext, sift: SiftHomography, projected: np.ndarray, ca
     H = rescaled(H, gray0.shape, ctx.shape)
     fit = ctx.config.fit
     flow = homography_flow(H, *ctx.shape)
-    found = fit_homography(flow, ctx.step, fit.ransac_px, None, fit.max_area_ratio, fit.min_hull)
+    found = fit_homography(flow, ctx.refit_step, fit.ransac_px, None, fit.max_area_ratio, fit.min_hull)
     return None if found is None else Start("sift", found[0], flow)
 
 
@@ -217,7 +217,7 @@ def aligned_plane(ctx: PairContext, start: Start, alignment: Candidate) -> Candi
     the support, as a candidate alone where it stands for it (:func:`plane_agrees`); else None."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
-    found = fit_homography(alignment.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
+    found = fit_homography(alignment.flow, ctx.refit_step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is None:
         return None
     plane = bound_outside(homography_flow(found[0], h, w), start.prior, ctx.support, cfg.surface.free_px)
@@ -236,7 +236,7 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     A homography that won alone gives way only to a re-alignment scoring ``plane_margin`` above it."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
-    found = fit_homography(best.flow, ctx.step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
+    found = fit_homography(best.flow, ctx.refit_step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
     if found is None:
         return None
     trust = cfg.align.trust_px

@@ -23,6 +23,8 @@ class ImagesConfig:
     max_side: int | None = None  # refine the pair shrunk to this longer side (None: its own size) ...
     verify_full: bool = False  # ... and verify the answer at the pair's own size (else: its confidence resized)
     contrast_sigma: float = 8.0  # Gaussian window (px) of the local contrast normalisation
+    shrunk_sigma: float = 3.5  # local statistics (contrast, NCC) of a window sigma >= twice this (px) are
+    # taken on the images shrunk sigma // this times (geometry.images.gaussian)
     plain: bool = True  # also measure residuals on the gray images without normalisation
     albedo: bool = True  # also measure them with the wall's reflectance divided out (divide_albedo)
     albedo_window: int = 31  # median window (odd, px) of the reflectance estimate
@@ -38,7 +40,12 @@ class FitConfig:
 
     ransac_px: float = 2.0  # inlier threshold of the homography fitted to a start's flow
     refit_px: float = 1.0  # inlier threshold of the homography refitted to model + residual
-    fit_points: int = 12288  # about how many grid correspondences a fit uses
+    fit_points: int = (
+        12288  # about how many grid correspondences a fit uses (a flow with DIS's or the network's noise) ...
+    )
+    refit_points: int = (
+        3072  # ... and one of a smooth flow over the frame (an alignment, the winner, SIFT's homography)
+    )
     max_area_ratio: float = 6.0  # a fit whose local area scale varies more over the frame is refused
     min_hull: float = 0.02  # a fit whose inliers' hull covers less of the frame is refused
 
@@ -177,6 +184,9 @@ class RefineConfig:
             "surface.robust_px": sf.robust_px,
             "selection.ncc_sigma": self.selection.ncc_sigma,
             "images.contrast_sigma": im.contrast_sigma,
+            "images.shrunk_sigma": im.shrunk_sigma,
+            "fit.fit_points": fit.fit_points,
+            "fit.refit_points": fit.refit_points,
             "confidence.radius": self.confidence.radius,
             "confidence.shrunk_sigma": self.confidence.shrunk_sigma,
             "align.trust_px": al.trust_px,

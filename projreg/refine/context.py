@@ -59,7 +59,7 @@ class Projected:
 
     ``image``: the uint8 RGB image it was built from (a copy, to recognise it: :meth:`matches`);
     ``plain``/``normalised``: its gray image without and with local contrast normalisation; ``evidence``,
-    ``share``, ``textured``, ``support``, ``step``: as :class:`PairContext`'s; ``reference``: the local
+    ``share``, ``textured``, ``support``, ``step``, ``refit_step``: as :class:`PairContext`'s; ``reference``: the local
     statistics the NCC maps compare with; ``weights``: each view's texture weight, by view, filled as
     asked, and ``near`` the fine spline's data ramp of each (:meth:`PairContext.near_data`); ``repeats``:
     where the image repeats itself (None until the refinement has measured it).
@@ -73,6 +73,7 @@ class Projected:
     textured: np.ndarray
     support: np.ndarray
     step: int
+    refit_step: int
     reference: LocalStats
     weights: dict[str, np.ndarray] = field(default_factory=dict)
     near: dict[str, np.ndarray] = field(default_factory=dict)
@@ -83,7 +84,7 @@ class Projected:
         """The projected side of a uint8 RGB ``(H, W, 3)`` image under ``config``."""
         im = config.images
         plain = to_gray(projected)
-        normalised = normalize_contrast(plain, im.contrast_sigma)
+        normalised = normalize_contrast(plain, im.contrast_sigma, im.shrunk_sigma)
         evidence = texture_weight(plain, im.texture_floor, im.texture_sigma)
         textured = evidence >= im.textured_at
         h, w = plain.shape
@@ -96,7 +97,8 @@ class Projected:
             textured,
             near(textured, config.surface.support_margin * max(h, w)),
             fit_step(h, w, config.fit.fit_points),
-            LocalStats(normalised, config.selection.ncc_sigma),
+            fit_step(h, w, config.fit.refit_points),
+            LocalStats(normalised, config.selection.ncc_sigma, im.shrunk_sigma),
         )
 
     def matches(self, projected: np.ndarray) -> bool:
@@ -112,7 +114,8 @@ class PairContext:
     ``plain``/``normalised``: the gray images ``(projected, captured)`` without and with local contrast
     normalisation; ``evidence``: the projected image's texture weight in [0, 1] (absolute floor);
     ``share``: its textured share of the frame; ``textured``/``support``: bool maps of the textured
-    pixels and of those near enough to texture to be measured; ``step``: the fits' grid step;
+    pixels and of those near enough to texture to be measured; ``step``: the fits' grid step, ``refit_step``
+    the refits' (``fit.refit_points``);
     ``pyramids``: each view's pyramid for the direct alignment; ``memo``: each candidate's check maps,
     by key (scored once, read again by the confidence).
     """
@@ -133,7 +136,7 @@ class PairContext:
         already built (:meth:`Projected.matches`)."""
         side = side or Projected.build(projected, config)
         gray = to_gray(captured)
-        normalised = normalize_contrast(gray, config.images.contrast_sigma)
+        normalised = normalize_contrast(gray, config.images.contrast_sigma, config.images.shrunk_sigma)
         return cls(config, side, (side.plain, gray), (side.normalised, normalised))
 
     @property
@@ -155,6 +158,10 @@ class PairContext:
     @property
     def step(self) -> int:
         return self.side.step
+
+    @property
+    def refit_step(self) -> int:
+        return self.side.refit_step
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -223,7 +230,9 @@ class PairContext:
         im = self.config.images
         if not im.albedo:
             return warp_back(self.normalised[1], flow)
-        return normalize_contrast(self._divide_albedo(warp_back(self.plain[1], flow)), im.contrast_sigma)
+        return normalize_contrast(
+            self._divide_albedo(warp_back(self.plain[1], flow)), im.contrast_sigma, im.shrunk_sigma
+        )
 
     def _divide_albedo(self, warped: np.ndarray) -> np.ndarray:
         return divide_albedo(self.plain[0], warped, self.config.images.albedo_window)

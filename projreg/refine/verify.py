@@ -60,7 +60,9 @@ def bridged(
     region says the same, two models of the gap agree and the gap is claimed."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
-    found = fit_homography(best.flow, ctx.step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull)
+    found = fit_homography(
+        best.flow, ctx.refit_step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull
+    )
     if found is None:
         return conf
     radius = cfg.confidence.radius * max(h, w)

@@ -1,9 +1,11 @@
-"""Image operations of the refinement: contrast normalisation and the wall's reflectance divided out."""
+"""Image operations of the refinement: contrast normalisation, local statistics on shrunk images and the wall's
+reflectance divided out."""
 
 import cv2
 import numpy as np
+from skimage import data
 
-from projreg.geometry.images import divide_albedo, normalize_contrast
+from projreg.geometry.images import LocalStats, divide_albedo, gaussian, normalize_contrast
 from projsynth.content.procedural import render_procedural
 
 
@@ -34,3 +36,15 @@ def test_divide_albedo_removes_a_wide_reflectance_pattern_and_keeps_a_misalignme
     assert ncc(divide_albedo(gray0, shifted, 31)) < 0.5  # a 3 px shift is not explained away as reflectance
     moved = np.roll(gray0, 3, axis=1)  # on a plain wall the division leaves a misalignment as it was
     assert abs(ncc(divide_albedo(gray0, moved, 31)) - ncc(moved)) < 0.02
+
+
+def test_local_statistics_taken_on_the_shrunk_images_agree_with_the_full_size_ones():
+    # a photograph (truth nobody here chose) against itself moved by a pixel under noise: the local NCC
+    # whose means are taken on the images shrunk twice reads as the full-size one to a few thousandths
+    image = cv2.resize(data.camera(), (512, 384)).astype(np.float32)
+    moved = np.roll(image, 1, axis=1) + np.random.default_rng(0).normal(0, 5, image.shape).astype(np.float32)
+    full, shrunk = LocalStats(image, 7.0).ncc(moved), LocalStats(image, 7.0, 3.5).ncc(moved)
+    assert float(np.abs(full - shrunk).mean()) < 0.01 and float(np.abs(full - shrunk).max()) < 0.1
+    assert not np.array_equal(full, shrunk)  # it was shrunk
+    # a window narrower than twice ``shrunk`` is taken at full size, exactly
+    np.testing.assert_array_equal(gaussian(image, 3.0, 3.5), gaussian(image, 3.0))
