@@ -271,7 +271,7 @@ def test_a_grating_matched_one_period_off_is_not_claimed():
         pred = GeometricRefiner(cfg).predict(projected, captured, wrong)
         err = np.linalg.norm(pred.flow - shift, axis=-1)
         if most is None:  # without the test the wrong period is claimed: the test is what refuses it
-            assert pred.claimed.mean() > 0.3 and np.median(err[pred.claimed]) > 4.0
+            assert pred.claimed.mean() > 0.2 and np.median(err[pred.claimed]) > 4.0
         else:
             assert pred.claimed.mean() < most, pred.claimed.mean()
 
