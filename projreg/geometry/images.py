@@ -23,8 +23,9 @@ def gaussian(image: np.ndarray, sigma: float, shrunk: float = 0.0) -> np.ndarray
 
     ``shrunk`` > 0: a ``sigma`` of at least twice ``shrunk`` is applied on the image shrunk ``f = sigma //
     shrunk`` times (area averages, whose own spread the Gaussian leaves out: ``sqrt(sigma^2 - (f^2 - 1) / 12)
-    / f`` there) and brought back bilinearly. A mean that wide is smooth at that scale, and a full-size
-    Gaussian of sigma 7 costs six times as much on a 384 x 512 image."""
+    / f`` there) and brought back bilinearly; an image under ``4 f`` px a side is blurred at its own size. A
+    mean that wide is smooth at that scale, and a full-size Gaussian of sigma 7 costs six times as much on a
+    384 x 512 image."""
     h, w = image.shape[:2]
     f = int(sigma // shrunk) if shrunk > 0 else 1
     if f < 2 or min(h, w) < 4 * f:

@@ -40,12 +40,8 @@ class FitConfig:
 
     ransac_px: float = 2.0  # inlier threshold of the homography fitted to a start's flow
     refit_px: float = 1.0  # inlier threshold of the homography refitted to model + residual
-    fit_points: int = (
-        12288  # about how many grid correspondences a fit uses (a flow with DIS's or the network's noise) ...
-    )
-    refit_points: int = (
-        3072  # ... and one of a smooth flow over the frame (an alignment, the winner, SIFT's homography)
-    )
+    fit_points: int = 12288  # grid correspondences (about) of a fit of a noisy flow (network, DIS) ...
+    refit_points: int = 3072  # ... and of a smooth one (an alignment, the winner, SIFT's homography)
     max_area_ratio: float = 6.0  # a fit whose local area scale varies more over the frame is refused
     min_hull: float = 0.02  # a fit whose inliers' hull covers less of the frame is refused
 

@@ -59,10 +59,11 @@ class Projected:
 
     ``image``: the uint8 RGB image it was built from (a copy, to recognise it: :meth:`matches`);
     ``plain``/``normalised``: its gray image without and with local contrast normalisation; ``evidence``,
-    ``share``, ``textured``, ``support``, ``step``, ``refit_step``: as :class:`PairContext`'s; ``reference``: the local
-    statistics the NCC maps compare with; ``weights``: each view's texture weight, by view, filled as
-    asked, and ``near`` the fine spline's data ramp of each (:meth:`PairContext.near_data`); ``repeats``:
-    where the image repeats itself (None until the refinement has measured it).
+    ``share``, ``textured``, ``support``, ``step``, ``refit_step``: as :class:`PairContext`'s;
+    ``reference``: the local statistics the NCC maps compare with; ``weights``: each view's texture
+    weight, by view, filled as asked, and ``near`` the fine spline's data ramp of each
+    (:meth:`PairContext.near_data`); ``repeats``: where the image repeats itself (None until the
+    refinement has measured it).
     """
 
     image: np.ndarray
