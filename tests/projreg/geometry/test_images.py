@@ -44,7 +44,7 @@ def test_local_statistics_taken_on_the_shrunk_images_agree_with_the_full_size_on
     image = cv2.resize(data.camera(), (512, 384)).astype(np.float32)
     moved = np.roll(image, 1, axis=1) + np.random.default_rng(0).normal(0, 5, image.shape).astype(np.float32)
     full, shrunk = LocalStats(image, 7.0).ncc(moved), LocalStats(image, 7.0, 3.5).ncc(moved)
-    assert float(np.abs(full - shrunk).mean()) < 0.01 and float(np.abs(full - shrunk).max()) < 0.1
+    assert float(np.abs(full - shrunk).mean()) < 0.005 and float(np.abs(full - shrunk).max()) < 0.06  # 0.003, 0.04
     assert not np.array_equal(full, shrunk)  # it was shrunk
     # a window narrower than twice ``shrunk`` is taken at full size, exactly
     np.testing.assert_array_equal(gaussian(image, 3.0, 3.5), gaussian(image, 3.0))
