@@ -26,7 +26,7 @@ import numpy as np
 
 from .gram import gram
 from .linearised import linearise
-from .splines import bspline_basis, one_blas_thread
+from .splines import bspline_basis, one_blas_thread, solve_spd
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,7 @@ def _step(
         rhs = np.concatenate([(By.T @ products[i] @ Bx).ravel() for i in (3, 4)])
     current = np.concatenate([control[..., 0].ravel(), control[..., 1].ravel()])
     penalty = np.kron(np.eye(2), reg * (np.trace(normal) / (2 * k) + 1e-9))
-    delta = np.linalg.solve(normal + penalty, -rhs - penalty @ current)
+    delta = solve_spd(normal + penalty, -rhs - penalty @ current)
     reach = float(np.abs(delta).max()) * s  # the largest move of a control value, in this level's pixels
     if reach > max_step:
         delta *= max_step / reach

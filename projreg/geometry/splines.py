@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import lru_cache
 
+import cv2
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
@@ -70,6 +71,15 @@ def one_blas_thread():
     return _BLAS.limit(limits=1, user_api="blas")
 
 
+def solve_spd(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The solution ``x`` of ``a x = b`` for a symmetric positive definite ``a`` (normal equations with a
+    ridge): by Cholesky (OpenCV's, about half the time of NumPy's LU on the 308 unknowns of a fine grid's
+    step), by LU where the factorisation finds ``a`` not positive definite. ``b``: ``(n,)`` or ``(n, m)``."""
+    rhs = np.asarray(b, np.float64)
+    ok, x = cv2.solve(np.asarray(a, np.float64), rhs.reshape(len(rhs), -1), flags=cv2.DECOMP_CHOLESKY)
+    return x.reshape(rhs.shape) if ok else np.linalg.solve(a, b)
+
+
 @lru_cache(maxsize=8)
 def spline_design(h: int, w: int, grid: tuple[int, int], step: int) -> SplineDesign:
     """The :class:`SplineDesign` of one frame size, grid and step, built once (its arrays are not written)."""
@@ -123,7 +133,7 @@ class SplineDesign:
             normal = (self.byy.T @ (wi @ self.bxx)).reshape(ky, ky, kx, kx)  # [i, k, j, l]
             normal = normal.transpose(0, 2, 1, 3).reshape(kx * ky, kx * ky)  # rows (i, j), columns (k, l)
             rhs = np.stack([self.by.T @ (f[..., i] * wi) @ self.bx for i in range(2)], axis=-1)  # [ky, kx, 2]
-            c = np.linalg.solve(normal + reg, rhs.reshape(kx * ky, 2)).reshape(ky, kx, 2)
+            c = solve_spd(normal + reg, rhs.reshape(kx * ky, 2)).reshape(ky, kx, 2)
             fit = self.at_samples(c)
         return c
 
