@@ -193,8 +193,19 @@ class RefineConfig:
                 raise ProjregError(f"refine {name} must be > 0, got {value}")
         if not al.tolerance >= 0:
             raise ProjregError(f"refine align.tolerance must be >= 0, got {al.tolerance}")
-        if unknown := set(al.polish) - {"normalised", "plain", "albedo"}:
-            raise ProjregError(f"refine align.polish names views normalised, plain, albedo; got {sorted(unknown)}")
+        for name, views in (
+            ("align.views", al.views),
+            ("align.polish", al.polish),
+            ("search.first_views", se.first_views),
+        ):
+            if unknown := set(views) - {"normalised", "plain", "albedo"}:
+                raise ProjregError(f"refine {name} names views normalised, plain, albedo; got {sorted(unknown)}")
+        off = [v for v in al.views if v in ("plain", "albedo") and not getattr(im, v)]
+        if al.direct and (off or not al.views):
+            raise ProjregError(
+                f"refine align.views must name one view or more, each one the images section measures (plain "
+                f"needs images.plain, albedo images.albedo); got {list(al.views)}"
+            )
         if im.max_side is not None and im.max_side < MIN_SIDE:
             raise ProjregError(f"refine images.max_side must be >= {MIN_SIDE}, got {im.max_side}")
         if im.albedo and (im.albedo_window < 3 or im.albedo_window % 2 == 0):

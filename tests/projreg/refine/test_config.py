@@ -23,6 +23,11 @@ from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUA
         ({"selection": {"plane_agree_px": -1.0}}, "selection.plane_agree_px"),
         ({"confidence": {"radius": 0}}, "confidence.radius"),
         ({"confidence": {"registered_windows": -1.0}}, "confidence.registered_windows"),
+        ({"align": {"views": ("normalized",)}}, "align.views names views normalised, plain, albedo"),
+        ({"align": {"polish": ("plane",)}}, "align.polish names views"),
+        ({"search": {"first_views": ("albedos",)}}, "search.first_views names views"),
+        ({"align": {"direct": True, "views": ()}}, "align.views must name one view or more"),
+        ({"align": {"direct": True, "views": ("plain",)}, "images": {"plain": False}}, "plain needs images.plain"),
     ],
 )
 def test_a_bad_value_is_refused_naming_its_section_and_field(sections, message):
