@@ -25,8 +25,9 @@ import cv2
 import numpy as np
 
 from .gram import gram
+from .linalg import one_blas_thread, solve_spd
 from .linearised import linearise
-from .splines import bspline_basis, one_blas_thread, solve_spd
+from .splines import bspline_basis
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from projreg.geometry.splines import SplineDesign, bspline_basis, fit_bspline, fit_detail, solve_spd
+from projreg.geometry.splines import SplineDesign, bspline_basis, fit_bspline, fit_detail
 
 
 def test_bspline_basis_is_a_partition_of_unity_and_reproduces_linear_fields():
@@ -60,16 +60,3 @@ def test_fit_detail_adds_a_short_bend_and_leaves_noise_alone():
     assert np.linalg.norm(detail, axis=-1)[:, 220:].max() < 4.0
     nothing, bend = fit_detail(noise, weight, (14, 11), (0.3, 3.0, 30.0), 2, 1.0)
     assert bend is None and not nothing.any()  # pure noise: cross-validation keeps the coarse fit
-
-
-def test_solve_spd_solves_normal_equations_and_falls_back_on_an_indefinite_matrix():
-    """Cholesky on a positive definite matrix (a fine grid's 308 unknowns, one or two right-hand sides);
-    LU where the matrix is symmetric but indefinite (Cholesky cannot factor it)."""
-    rng = np.random.default_rng(0)
-    m = rng.normal(size=(308, 900))
-    a = m @ m.T + 1e-3 * np.eye(308)
-    for b in (rng.normal(size=308), rng.normal(size=(308, 2))):
-        x = solve_spd(a, b)
-        assert x.shape == b.shape and np.abs(a @ x - b).max() < 1e-9 * np.abs(b).max() * np.abs(a).max()
-    indefinite = np.array([[1.0, 2.0], [2.0, 1.0]])
-    np.testing.assert_allclose(solve_spd(indefinite, np.array([3.0, 3.0])), [1.0, 1.0])
