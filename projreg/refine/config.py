@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from ..errors import ProjregError
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
+VIEWS = ("normalised", "plain", "albedo")  # the gray images a residual is measured on (PairContext.views)
 
 
 @dataclass(frozen=True)
@@ -198,8 +199,8 @@ class RefineConfig:
             ("align.polish", al.polish),
             ("search.first_views", se.first_views),
         ):
-            if unknown := set(views) - {"normalised", "plain", "albedo"}:
-                raise ProjregError(f"refine {name} names views normalised, plain, albedo; got {sorted(unknown)}")
+            if unknown := set(views) - set(VIEWS):
+                raise ProjregError(f"refine {name} names views {', '.join(VIEWS)}; got {sorted(unknown)}")
         off = [v for v in al.views if v in ("plain", "albedo") and not getattr(im, v)]
         if al.direct and (off or not al.views):
             raise ProjregError(

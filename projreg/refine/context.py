@@ -33,7 +33,6 @@ from ..geometry.warp import compose, lands_inside, warp_back
 from ..prediction import CONFIDENT
 from .config import RefineConfig
 
-VIEWS = ("normalised", "plain", "albedo")  # the gray images a residual is measured on
 DisFlows = Callable[[list[tuple[np.ndarray, np.ndarray]]], list[np.ndarray]]  # DIS's flow of each image pair
 
 
