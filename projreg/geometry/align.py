@@ -4,8 +4,7 @@ image pyramid.
 
 Each step linearises the warped image in the control values (the gradient is the mean of the projected
 image's and the warped image's, as in efficient second-order minimisation), weights the pixels by their
-texture and a Cauchy function of their residual (scale: ``robust`` times the residuals' standard
-deviation, read from their median absolute deviation), and
+texture and a Cauchy function of their residual (scale: the residuals' median absolute deviation), and
 solves the normal equations with a second-difference penalty on the control grid (a P-spline: where the
 images carry no texture the surface is bridged smoothly) and a small ridge. The per-pixel work is one
 fused pass (:mod:`~projreg.geometry.linearised`); the normal equations are summed span by span over the
@@ -27,7 +26,7 @@ import numpy as np
 
 from .gram import gram
 from .linalg import one_blas_thread, solve_spd
-from .linearised import CAUCHY_95, linearise
+from .linearised import linearise
 from .splines import bspline_basis
 
 
@@ -101,7 +100,6 @@ def align(
     ridge: float,
     max_step: float = 1.0,
     tolerance: float = 0.0,
-    robust: float = CAUCHY_95,
 ) -> np.ndarray:
     """The flow ``base + spline`` aligning the pair of ``levels`` (:func:`pyramid`), coarse to fine.
 
@@ -116,8 +114,6 @@ def align(
             move one farther is shortened): the linearisation holds about a pixel.
         tolerance: a level stops before its steps are spent once a step moves no control value farther
             than this, in pixels of its level (0: every step is taken).
-        robust: the Cauchy weights' scale in standard deviations of the residuals (``CAUCHY_95``: 95 %
-            efficiency when they are Gaussian).
 
     Returns:
         float32 ``(H, W, 2)``: ``base`` plus the fitted spline.
@@ -130,7 +126,7 @@ def align(
         h, w = level.projected.shape
         start = base if factor == 1 else cv2.resize(base, (w, h), interpolation=cv2.INTER_AREA) * level.scale
         for _ in range(iterations[factor]):
-            delta = _step(level, start, control, grid, reg, max_step, robust)
+            delta = _step(level, start, control, grid, reg, max_step)
             control = control + delta
             if float(np.abs(delta).max()) * level.scale < tolerance:  # converged at this level
                 break
@@ -138,13 +134,7 @@ def align(
 
 
 def _step(
-    level: Level,
-    start: np.ndarray,
-    control: np.ndarray,
-    grid: tuple[int, int],
-    reg: np.ndarray,
-    max_step: float,
-    robust: float,
+    level: Level, start: np.ndarray, control: np.ndarray, grid: tuple[int, int], reg: np.ndarray, max_step: float
 ) -> np.ndarray:
     """One robust Gauss-Newton update of the control values (module docstring)."""
     kx, ky = grid
@@ -154,9 +144,7 @@ def _step(
     s = level.scale
     columns = np.stack([control[..., i] @ Bx.T for i in range(2)]) * s  # [2, ky, w], this level's pixels
     products = np.empty((5, h, w))  # [5, h, w]: w gx gx, w gx gy, w gy gy, w gx r, w gy r
-    linearise(
-        level.projected, level.captured, level.gradient, level.weight, start, By, columns, 0.5 * s, robust, products
-    )
+    linearise(level.projected, level.captured, level.gradient, level.weight, start, By, columns, 0.5 * s, products)
     with one_blas_thread():
         blocks = gram(h, w, grid).blocks(products[:3])  # [3, k, k]
         normal = np.block([[blocks[0], blocks[1]], [blocks[1].T, blocks[2]]])

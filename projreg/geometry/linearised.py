@@ -19,7 +19,6 @@ import numpy as np
 from projsynth.utils.jit import jit
 
 MAD_TO_SIGMA = 1.4826  # a Gaussian's standard deviation per median absolute deviation
-CAUCHY_95 = 2.385  # the Cauchy weights' scale, in residual standard deviations, of 95 % efficiency on Gaussian noise
 MIN_SCALE = 1e-3  # the Cauchy scale's floor, grey levels: a perfect match still weighs by its texture
 TEXTURED = 0.5  # pixels whose texture weight exceeds this set the residuals' scale ...
 MAD_SAMPLES = 16384  # ... the median of about this many of them, evenly spaced (sampling error about 1 %)
@@ -34,7 +33,6 @@ def linearise(
     rows: np.ndarray,
     columns: np.ndarray,
     slope: float,
-    robust: float,
     out: np.ndarray,
 ) -> None:
     """The robustly weighted products of one Gauss-Newton step at the flow ``start + rows @ columns``,
@@ -49,12 +47,10 @@ def linearise(
             ``columns`` float64 ``(2, ky, w)`` (the control values times the basis along x, per component).
         slope: the residual's derivative per unit of its gradient (``0.5 * level scale``: the mean of
             the two gradients, in control values of the finest level).
-        robust: the Cauchy weights' scale ``s`` in standard deviations of the residuals.
         out: float64 ``(5, h, w)``, overwritten: ``w gx gx, w gx gy, w gy gy, w gx r, w gy r`` with ``r``
             the residual, ``g`` its derivative in the flow and ``w`` the texture weight inside the
-            captured frame divided by ``1 + (r / s)^2`` (Cauchy; ``s``: ``robust`` times the residuals'
-            standard deviation, read from their median absolute deviation over the textured pixels,
-            about ``MAD_SAMPLES`` of them).
+            captured frame divided by ``1 + (r / s)^2`` (Cauchy; ``s``: the residuals' median absolute
+            deviation over the textured pixels, about ``MAD_SAMPLES`` of them, as a standard deviation).
     """
     h, w = projected.shape
     mapx, mapy = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
@@ -65,8 +61,7 @@ def linearise(
     n = _residual(
         projected, warped, texture, mapx, mapy, captured.shape[0], captured.shape[1], residual, weight, spread
     )
-    sigma = MAD_TO_SIGMA * float(np.median(spread[: n : max(1, n // MAD_SAMPLES)])) if n else 1.0
-    scale = robust * sigma + MIN_SCALE
+    scale = MAD_TO_SIGMA * float(np.median(spread[: n : max(1, n // MAD_SAMPLES)])) + MIN_SCALE if n else 1.0
     _products(warped, residual, weight, gradient[0], gradient[1], slope, scale, out)
 
 

@@ -266,11 +266,10 @@ def aligned(ctx: PairContext, view: str, start: np.ndarray) -> np.ndarray:
     al, sf = ctx.config.align, ctx.config.surface
     levels = ctx.pyramid(view)
     steps = dict(zip(al.levels, al.steps, strict=True))
-    flow = align(levels, start, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance, al.robust)
+    flow = align(levels, start, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance)
     if al.detail:
-        detail = {1: al.detail_steps}
         flow = align(
-            levels, flow, sf.detail_grid, detail, al.detail_bend, al.ridge, al.max_step, al.tolerance, al.robust
+            levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, al.ridge, al.max_step, al.tolerance
         )
     return flow
 

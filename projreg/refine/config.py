@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from ..errors import ProjregError
-from ..geometry.linearised import CAUCHY_95
 
 MIN_SIDE = 32  # below this DIS has no pyramid to work with: the flow is returned unchanged
 VIEWS = ("normalised", "plain", "albedo")  # the gray images a residual is measured on (PairContext.views)
@@ -68,11 +67,10 @@ class AlignConfig:
     steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level, at most (align.tolerance)
     max_step: float = 1.0  # the most one step moves a control value, in pixels of its level
     tolerance: float = 0.02  # a level's steps stop once one moves no control value farther (px of the level)
-    robust: float = CAUCHY_95  # Cauchy scale of the pixels' weights, in standard deviations of the residuals
     bend: float = 0.01  # second-difference penalty of the coarse grid (surface.grid), relative
     ridge: float = 1e-4  # pull of every control value towards 0, relative
     detail: bool = True  # then align the fine grid (surface.detail_grid) at full size ...
-    detail_steps: int = 4  # ... with at most this many steps (align.tolerance stops it earlier)
+    detail_steps: int = 6  # ... with at most this many steps (align.tolerance stops it earlier)
     detail_bend: float = 0.1  # ... and this second-difference penalty, relative
 
 
@@ -190,7 +188,6 @@ class RefineConfig:
             "confidence.shrunk_sigma": self.confidence.shrunk_sigma,
             "align.trust_px": al.trust_px,
             "align.max_step": al.max_step,
-            "align.robust": al.robust,
         }
         for name, value in positive.items():
             if not value > 0:

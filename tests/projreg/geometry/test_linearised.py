@@ -41,6 +41,6 @@ def test_products_match_the_plain_step(shape):
     columns = np.stack([control[..., i] @ bspline_basis(w, kx).T for i in range(2)])  # [2, ky, w]
     flow = (start + np.stack([rows @ columns[i] for i in range(2)], axis=-1)).astype(np.float32)
     out = np.empty((5, h, w))
-    linearise(projected, captured, gradient, texture, start, rows, columns, 0.5, 1.0, out)
+    linearise(projected, captured, gradient, texture, start, rows, columns, 0.5, out)
     want = plain(projected, captured, gradient, texture, flow, 0.5)
     np.testing.assert_allclose(out, want, rtol=2e-4, atol=1e-6 * np.abs(want).max())
