@@ -148,13 +148,21 @@ def periodicity(gray: np.ndarray, tile: int = 64, lobe: float = 0.3, overlap: fl
 def _autocorrelation(a: np.ndarray) -> np.ndarray:
     """The linear autocorrelation of ``tile x tile`` arrays ``a`` ``[..., tile, tile]`` at shifts up to half a
     tile each way, ``[..., tile + 1, tile + 1]`` with zero shift at the centre: by FFT zero-padded to 1.5
-    tiles, the least that keeps those shifts free of the circular wrap."""
+    tiles, the least that keeps those shifts free of the circular wrap. OpenCV's real transforms, one tile
+    at a time (a third of numpy's time on these sizes), in float32."""
     tile = a.shape[-1]
     n = tile + tile // 2
-    power = np.abs(np.fft.rfft2(a, s=(n, n))) ** 2
-    ac = np.fft.fftshift(np.fft.irfft2(power, s=(n, n)), axes=(-2, -1))
-    span = slice(n // 2 - tile // 2, n // 2 + tile // 2 + 1)
-    return ac[..., span, span]
+    shifts = np.arange(-(tile // 2), tile // 2 + 1) % n  # zero shift at the centre
+    flat = np.asarray(a, np.float32).reshape(-1, tile, tile)
+    out = np.empty((len(flat), tile + 1, tile + 1), np.float32)
+    padded = np.zeros((n, n), np.float32)
+    for i, x in enumerate(flat):
+        padded[:tile, :tile] = x
+        spectrum = cv2.dft(padded)  # packed real transform
+        power = cv2.mulSpectrums(spectrum, spectrum, 0, conjB=True)
+        ac = cv2.dft(power, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE | cv2.DFT_REAL_OUTPUT)
+        out[i] = ac[np.ix_(shifts, shifts)]
+    return out.reshape(*a.shape[:-2], tile + 1, tile + 1)
 
 
 @lru_cache(maxsize=8)
