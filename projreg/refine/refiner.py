@@ -31,7 +31,8 @@ reads as the algorithm:
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
 8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface
-   (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it.
+   (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it;
+   started on the pool as soon as such a winner is selected, beside its verification.
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame and
    ``registered_windows`` of the checks' windows (:func:`~projreg.refine.evidence.registers`); otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
@@ -49,6 +50,7 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import cv2
@@ -80,7 +82,8 @@ from .workers import Workers
 @dataclass
 class Search:
     """One pair's search so far: its context, the network's start, the candidates in the order tried,
-    their scores, the stages run, the periodicity map, and the current winner and its confidence."""
+    their scores, the stages run, the periodicity map, the current winner and its confidence, and the
+    winner's re-alignment when it was started ahead (:meth:`GeometricRefiner._reselect`)."""
 
     ctx: PairContext
     network: Start
@@ -90,6 +93,7 @@ class Search:
     repeats: np.ndarray | None = None
     best: Candidate | None = None
     conf: np.ndarray | None = None
+    ahead: tuple[Candidate, Future] | None = None
 
 
 class GeometricRefiner:
@@ -193,7 +197,7 @@ class GeometricRefiner:
         if measure:
             ctx.side.repeats = pending.result()
         search.repeats = ctx.side.repeats
-        self._reselect(search)
+        self._reselect(search, ahead=direct and cfg.align.realign and (lambda best: best.polished))
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
         claimed = ctx.claimed_share(search.conf, search.best.flow)
         if not one_stage and (more or rest) and claimed < cfg.search.escalate_below:
@@ -217,15 +221,24 @@ class GeometricRefiner:
         if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
             search.cands += stage(ctx, self._workers, [grown], first_views if direct else views, direct)
             search.stages.append("grown")
-            self._reselect(search)
+            self._reselect(search, ahead=cfg.align.realign and (lambda best: True))  # a grown answer is re-aligned
         if cfg.align.realign and (search.best.polished or not settled):  # DIS's noise under the spline
             self._realign(search)
+        elif search.ahead is not None:  # started for a winner that was not kept
+            search.ahead[1].cancel()
         return search
 
     def _realign(self, search: Search) -> None:
-        """The winner replaced by its re-alignment (:func:`~projreg.refine.candidates.realign`) when kept."""
-        ctx = search.ctx
-        if (again := realign(ctx, search.best)) is not None:
+        """The winner replaced by its re-alignment (:func:`~projreg.refine.candidates.realign`) when kept;
+        the one started ahead where it is this winner's."""
+        ctx, ahead = search.ctx, search.ahead
+        if ahead is not None and ahead[0] is search.best:
+            again = ahead[1].result()
+        else:
+            if ahead is not None:
+                ahead[1].cancel()
+            again = realign(ctx, search.best)
+        if again is not None:
             search.cands = [again if c is search.best else c for c in search.cands]
             search.best, search.scores[again.key] = again, ctx.score(again.key, again.flow)
             search.stages.append("realigned")
@@ -307,11 +320,17 @@ class GeometricRefiner:
             out += [found] if found is not None else []
         return out
 
-    def _reselect(self, search: Search) -> None:
-        """Score the new candidates, select, and verify the winner."""
+    def _reselect(self, search: Search, ahead: Callable[[Candidate], bool] | bool = False) -> None:
+        """Score the new candidates, select, and verify the winner. ``ahead``: which winners are re-aligned
+        unless the search moves on; such a winner's re-alignment starts on the pool first, beside its
+        verification (the same answer; a core's work overlapped with the checks')."""
         ctx, scores = search.ctx, search.scores
         scores.update({c.key: ctx.score(c.key, c.flow) for c in search.cands if c.key not in scores})
         search.best = select(search.cands, scores, self.config.selection.plane_margin)
+        if ahead and self._workers.count >= 2 and ahead(search.best):
+            if search.ahead is not None:
+                search.ahead[1].cancel()
+            search.ahead = (search.best, self._workers.submit(realign, ctx, search.best))
         search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
 
     def _searched_shrunk(self, h: int, w: int) -> bool:
