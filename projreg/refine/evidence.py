@@ -125,12 +125,13 @@ def periodicity(gray: np.ndarray, tile: int = 64, lobe: float = 0.3, overlap: fl
     hann, window = _hann_window(tile)
     tiles = np.stack([g[y : y + tile, x : x + tile] for y in starts[0] for x in starts[1]])  # [T, tile, tile]
     tiles = (tiles - tiles.mean(axis=(1, 2), keepdims=True)) * hann
-    ac = _autocorrelation(tiles) / window  # [T, tile + 1, tile + 1]
+    live = np.flatnonzero(tiles.std(axis=(1, 2)) >= 1e-3)  # a flat tile does not repeat (score 0)
+    ac = _autocorrelation(tiles[live]) / window  # [T', tile + 1, tile + 1]
     ac = ac / np.maximum(ac[:, tile // 2, tile // 2 : tile // 2 + 1, None], 1e-6)
     ac[:, window < overlap * window.max()] = 0.0  # shifts whose windows barely overlap say nothing
     scores = np.zeros(len(tiles), np.float32)
-    for i, a in enumerate(ac):
-        if not np.isfinite(a).all() or tiles[i].std() < 1e-3:
+    for i, a in zip(live, ac, strict=True):
+        if not np.isfinite(a).all():
             continue
         _, labels = cv2.connectedComponents((a >= lobe).astype(np.uint8), connectivity=8)
         outside = labels != labels[tile // 2, tile // 2]
