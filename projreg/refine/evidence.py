@@ -90,10 +90,26 @@ def repeating(
     0.83-0.91 there, from its courses, while its detail differs from one brick to the next, which the
     photometric check sees; a repeated digital motif scores 0.98-1.00 (docs/model.md)."""
     out = np.zeros(gray.shape, bool)
-    for i, tile in enumerate(tiles):
-        if min(gray.shape) >= tile:  # a smaller image: no such window
-            out |= periodicity(gray, tile, lobe, overlap) >= (coarse_peak if i else fine_peak)
+    for job in repeat_jobs(gray, fine_peak, coarse_peak, tiles, lobe, overlap):
+        out |= repeats_in(*job)
     return out
+
+
+def repeat_jobs(
+    gray: np.ndarray, fine_peak: float, coarse_peak: float, tiles: tuple[int, ...], lobe: float, overlap: float
+) -> list[tuple]:
+    """:func:`repeating`'s windows as independent jobs, the arguments of :func:`repeats_in` each (a caller
+    with threads runs them side by side and ORs the maps); windows larger than the image are left out."""
+    return [
+        (gray, tile, coarse_peak if i else fine_peak, lobe, overlap)
+        for i, tile in enumerate(tiles)
+        if min(gray.shape) >= tile
+    ]
+
+
+def repeats_in(gray: np.ndarray, tile: int, peak: float, lobe: float, overlap: float) -> np.ndarray:
+    """Where :func:`periodicity` in ``tile`` px windows reaches ``peak``, bool ``(H, W)``."""
+    return periodicity(gray, tile, lobe, overlap) >= peak
 
 
 def periodicity(gray: np.ndarray, tile: int = 64, lobe: float = 0.3, overlap: float = 0.25) -> np.ndarray:

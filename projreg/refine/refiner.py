@@ -73,7 +73,7 @@ from .candidates import (
 )
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
-from .evidence import registers, repeating, unverified
+from .evidence import registers, repeat_jobs, repeats_in, unverified
 from .selection import rivals, select
 from .stages import gather, stage, submit
 from .workers import Workers
@@ -180,8 +180,9 @@ class GeometricRefiner:
         measure = conf_cfg.periodic and ctx.side.repeats is None  # once per projected image ...
         periodic = (conf_cfg.periodic_peak, conf_cfg.coarse_peak, conf_cfg.periodic_tiles)
         periodic += (conf_cfg.periodic_lobe, conf_cfg.periodic_overlap)
-        # ... on the pool, beside the first stage
-        pending = self._workers.submit(repeating, ctx.normalised[0], *periodic) if measure else None
+        # ... on the pool, each window size a job, beside the network's start
+        jobs = repeat_jobs(ctx.normalised[0], *periodic) if measure else []
+        pending = [self._workers.submit(repeats_in, *job) for job in jobs]
         network, first, usable = network_starts(ctx, flow)
         views, direct = list(ctx.views()), cfg.align.direct
         first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
@@ -195,7 +196,10 @@ class GeometricRefiner:
             cands, stages = stage(ctx, self._workers, first, first_views, direct), ["network"]
         search = Search(ctx, network, cands, {}, stages)
         if measure:
-            ctx.side.repeats = pending.result()
+            repeats = np.zeros(ctx.shape, bool)
+            for job in pending:
+                repeats |= job.result()
+            ctx.side.repeats = repeats
         search.repeats = ctx.side.repeats
         self._reselect(search, ahead=direct and cfg.align.realign and (lambda best: best.polished))
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
