@@ -201,7 +201,7 @@ class GeometricRefiner:
                 repeats |= job.result()
             ctx.side.repeats = repeats
         search.repeats = ctx.side.repeats
-        self._reselect(search, ahead=direct and cfg.align.realign and (lambda best: best.polished))
+        self._reselect(search, ahead=(lambda best: best.polished) if direct and cfg.align.realign else None)
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
         claimed = ctx.claimed_share(search.conf, search.best.flow)
         if not one_stage and (more or rest) and claimed < cfg.search.escalate_below:
@@ -225,7 +225,7 @@ class GeometricRefiner:
         if grown is not None:  # the verified region's plane, refined again, may verify more of the frame
             search.cands += stage(ctx, self._workers, [grown], first_views if direct else views, direct)
             search.stages.append("grown")
-            self._reselect(search, ahead=cfg.align.realign and (lambda best: True))  # a grown answer is re-aligned
+            self._reselect(search, ahead=(lambda best: True) if cfg.align.realign else None)  # re-aligned next
         if cfg.align.realign and (search.best.polished or not settled):  # DIS's noise under the spline
             self._realign(search)
         elif search.ahead is not None:  # started for a winner that was not kept
@@ -324,14 +324,14 @@ class GeometricRefiner:
             out += [found] if found is not None else []
         return out
 
-    def _reselect(self, search: Search, ahead: Callable[[Candidate], bool] | bool = False) -> None:
+    def _reselect(self, search: Search, ahead: Callable[[Candidate], bool] | None = None) -> None:
         """Score the new candidates, select, and verify the winner. ``ahead``: which winners are re-aligned
         unless the search moves on; such a winner's re-alignment starts on the pool first, beside its
         verification (the same answer; a core's work overlapped with the checks')."""
         ctx, scores = search.ctx, search.scores
         scores.update({c.key: ctx.score(c.key, c.flow) for c in search.cands if c.key not in scores})
         search.best = select(search.cands, scores, self.config.selection.plane_margin)
-        if ahead and self._workers.count >= 2 and ahead(search.best):
+        if ahead is not None and self._workers.count >= 2 and ahead(search.best):
             if search.ahead is not None:
                 search.ahead[1].cancel()
             search.ahead = (search.best, self._workers.submit(realign, ctx, search.best))
