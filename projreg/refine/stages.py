@@ -46,18 +46,19 @@ def gather(ctx: PairContext, starts: list[Start], submitted: list[Future]) -> li
 
 def aligned(ctx: PairContext, workers: Workers, starts: list[Start], views: list[str]) -> list[Candidate]:
     """Every start aligned directly on each of ``views`` side by side on the pool; each alignment's polishes
-    and refitted plane are tasks of their own, submitted as it is done, so both threads stay busy. In a
-    fixed order: each alignment followed by its polishes, then the planes."""
+    are tasks of their own, submitted as it is done, and the refitted planes (the short tasks) after every
+    polish, so that the threads finish together. In a fixed order: each alignment followed by its polishes,
+    then the planes."""
     jobs = [(s, view) for view in views for s in starts if s.H is not None]
     aligning = [workers.submit(_scored, align_view, ctx, s, view) for s, view in jobs]
     finishing = []
     for (s, view), job in zip(jobs, aligning, strict=True):
         alignment = job.result()
         polishing = [workers.submit(_polished, ctx, workers, s, alignment, on) for on in polish_views(ctx, view)]
-        plane = workers.submit(_scored, aligned_plane, ctx, s, alignment)
-        finishing.append((alignment, polishing, plane))
-    out = [c for alignment, polishing, _ in finishing for c in [alignment] + [job.result() for job in polishing]]
-    return out + [plane for *_, job in finishing if (plane := job.result()) is not None]
+        finishing.append((s, alignment, polishing))
+    planes = [workers.submit(_scored, aligned_plane, ctx, s, alignment) for s, alignment, _ in finishing]
+    out = [c for _, alignment, polishing in finishing for c in [alignment] + [job.result() for job in polishing]]
+    return out + [plane for job in planes if (plane := job.result()) is not None]
 
 
 def _refined(ctx: PairContext, workers: Workers, start: Start, view: str) -> list[Candidate]:
