@@ -4,6 +4,9 @@ equations (symmetric positive definite: a ridge is always added).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import wraps
+
 import cv2
 import numpy as np
 from threadpoolctl import ThreadpoolController
@@ -16,6 +19,19 @@ def one_blas_thread():
     with torch's OpenMP workers (or another process) made one fit take 1.5-4 s instead of 50 ms on the
     2-core VM."""
     return _BLAS.limit(limits=1, user_api="blas")
+
+
+def on_one_blas_thread(fn: Callable) -> Callable:
+    """``fn`` run in :func:`one_blas_thread`: for work that has threads of its own, beside which BLAS's
+    would only contend for the cores (waiting BLAS threads spin: with the refinement on one thread, its
+    small solves stalled for tens of milliseconds)."""
+
+    @wraps(fn)
+    def run(*args, **kwargs):
+        with one_blas_thread():
+            return fn(*args, **kwargs)
+
+    return run
 
 
 def solve_spd(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -59,6 +59,7 @@ import numpy as np
 from ..errors import ProjregError
 from ..geometry.frames import resize_flow, shrink
 from ..geometry.homography import SiftHomography, homography_flow, rescaled
+from ..geometry.linalg import on_one_blas_thread
 from ..prediction import CONFIDENT, Prediction
 from . import verify
 from .candidates import (
@@ -117,6 +118,7 @@ class GeometricRefiner:
         """The refined flow with the pixels it claims and whether the pair registered (:meth:`predict_info`)."""
         return self.predict_info(projected, captured, flow)[0]
 
+    @on_one_blas_thread  # the refinement's threads are its pool's: BLAS threads beside them only contend
     def predict_info(
         self,
         projected: np.ndarray,

@@ -7,6 +7,7 @@ import multiprocessing
 import cv2
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info
 
 from projreg import ProjregError
 from projreg.evaluation.baselines import SiftRansac
@@ -71,6 +72,7 @@ def test_a_lost_network_is_rescued_by_the_sift_or_identity_hypothesis(samples):
 def test_refine_is_deterministic_whatever_the_workers_and_invariant_to_brightness(samples):
     s = samples[3]
     start = coarse(s, np.random.default_rng(4))
+    blas = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
     a, info = GeometricRefiner().predict_info(s["projected"], s["captured"], start)
     b, _ = GeometricRefiner().predict_info(s["projected"], s["captured"], start)
     one = GeometricRefiner(QUALITIES[DEFAULT_QUALITY].refine.with_sections(search={"workers": 1}))
@@ -79,6 +81,7 @@ def test_refine_is_deterministic_whatever_the_workers_and_invariant_to_brightnes
         np.testing.assert_array_equal(a.flow, other.flow)
         np.testing.assert_array_equal(a.claimed, other.claimed)
     assert info.scores == info_one.scores
+    assert [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"] == blas  # as it found them
     darker = (0.7 * s["captured"].astype(np.float32) + 20).astype(np.uint8)
     d = GeometricRefiner().refine(s["projected"], darker, start)[0]
     assert epe(d, s) < 0.5, epe(d, s)
