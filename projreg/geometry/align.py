@@ -18,6 +18,7 @@ values ``(ky, kx, 2)`` in pixels of the finest level.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -28,6 +29,10 @@ from .gram import gram
 from .linalg import one_blas_thread, solve_spd
 from .linearised import linearise
 from .splines import bspline_basis
+
+
+class Stopped(Exception):
+    """An alignment stopped by its caller (``stop``) before its steps were spent: its answer is not wanted."""
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,7 @@ def align(
     ridge: float,
     max_step: float = 1.0,
     tolerance: float = 0.0,
+    stop: Callable[[], bool] | None = None,
 ) -> np.ndarray:
     """The flow ``base + spline`` aligning the pair of ``levels`` (:func:`pyramid`), coarse to fine.
 
@@ -114,6 +120,8 @@ def align(
             move one farther is shortened): the linearisation holds about a pixel.
         tolerance: a level stops before its steps are spent once a step moves no control value farther
             than this, in pixels of its level (0: every step is taken).
+        stop: asked before each step; once it says True the alignment raises :class:`Stopped` (a caller that
+            no longer wants the answer frees the thread within a step).
 
     Returns:
         float32 ``(H, W, 2)``: ``base`` plus the fitted spline.
@@ -126,6 +134,8 @@ def align(
         h, w = level.projected.shape
         start = base if factor == 1 else cv2.resize(base, (w, h), interpolation=cv2.INTER_AREA) * level.scale
         for _ in range(iterations[factor]):
+            if stop is not None and stop():
+                raise Stopped
             delta = _step(level, start, control, grid, reg, max_step)
             control = control + delta
             if float(np.abs(delta).max()) * level.scale < tolerance:  # converged at this level

@@ -9,6 +9,7 @@ projected -> captured.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -224,7 +225,7 @@ def aligned_plane(ctx: PairContext, start: Start, alignment: Candidate) -> Candi
     return replace(alignment, flow=plane, plane=True) if plane_agrees(ctx, plane, alignment.flow) else None
 
 
-def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
+def realign(ctx: PairContext, best: Candidate, stop: Callable[[], bool] | None = None) -> Candidate | None:
     """The selected candidate aligned again directly (:func:`aligned`) from its smooth surface (its
     homography plus a P-spline of the rest on the fine grid, bend ``align.bend_start``), or None when the
     fit fails or the alignment moves the textured pixels farther than ``align.trust_px`` (at the
@@ -233,7 +234,8 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
     A DIS-refined candidate carries DIS's noise under its spline (the spline is fitted to a residual
     measured patch by patch); the alignment measures the same surface model on every textured pixel at
     once. Kept within ``trust_px`` of an answer the search verified, it cannot move it to another basin.
-    A homography that won alone gives way only to a re-alignment scoring ``plane_margin`` above it."""
+    A homography that won alone gives way only to a re-alignment scoring ``plane_margin`` above it.
+    ``stop``: as :func:`~projreg.geometry.align.align`'s (the search no longer wants the answer)."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
     found = fit_homography(best.flow, ctx.refit_step, fit.refit_px, ctx.textured, fit.max_area_ratio, fit.min_hull)
@@ -241,7 +243,7 @@ def realign(ctx: PairContext, best: Candidate) -> Candidate | None:
         return None
     trust = cfg.align.trust_px
     plane = homography_flow(found[0], h, w)
-    flow = aligned(ctx, "normalised", plane + smooth_rest(ctx, best.flow - plane))
+    flow = aligned(ctx, "normalised", plane + smooth_rest(ctx, best.flow - plane), stop)
     near_data = ctx.near_data()  # as the detail level fades
     flow = best.flow + near_data[..., None] * (flow - best.flow)  # no change where the images carry no texture
     gap = flow_distance(flow, best.flow)[ctx.textured]
@@ -260,17 +262,16 @@ def smooth_rest(ctx: PairContext, rest: np.ndarray) -> np.ndarray:
     return fit_bspline(rest, ctx.evidence, sf.detail_grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations, bend)
 
 
-def aligned(ctx: PairContext, view: str, start: np.ndarray) -> np.ndarray:
+def aligned(ctx: PairContext, view: str, start: np.ndarray, stop: Callable[[], bool] | None = None) -> np.ndarray:
     """``start`` plus the coarse spline aligned coarse to fine on ``view``, then the fine one at full
-    size (``align.detail``): :func:`~projreg.geometry.align.align`."""
+    size (``align.detail``): :func:`~projreg.geometry.align.align` (``stop``: its)."""
     al, sf = ctx.config.align, ctx.config.surface
     levels = ctx.pyramid(view)
     steps = dict(zip(al.levels, al.steps, strict=True))
-    flow = align(levels, start, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance)
+    flow = align(levels, start, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance, stop)
     if al.detail:
-        flow = align(
-            levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, al.ridge, al.max_step, al.tolerance
-        )
+        fine = {1: al.detail_steps}
+        flow = align(levels, flow, sf.detail_grid, fine, al.detail_bend, al.ridge, al.max_step, al.tolerance, stop)
     return flow
 
 

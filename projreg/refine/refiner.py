@@ -50,8 +50,7 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Future
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -75,26 +74,10 @@ from .candidates import (
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
 from .evidence import registers, repeat_jobs, repeats_in, unverified
+from .search import Search
 from .selection import rivals, select
 from .stages import gather, stage, submit
 from .workers import Workers
-
-
-@dataclass
-class Search:
-    """One pair's search so far: its context, the network's start, the candidates in the order tried,
-    their scores, the stages run, the periodicity map, the current winner and its confidence, and the
-    winner's re-alignment when it was started ahead (:meth:`GeometricRefiner._reselect`)."""
-
-    ctx: PairContext
-    network: Start
-    cands: list[Candidate]
-    scores: dict[str, float]
-    stages: list[str]
-    repeats: np.ndarray | None = None
-    best: Candidate | None = None
-    conf: np.ndarray | None = None
-    ahead: tuple[Candidate, Future] | None = None
 
 
 class GeometricRefiner:
@@ -207,6 +190,7 @@ class GeometricRefiner:
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
         claimed = ctx.claimed_share(search.conf, search.best.flow)
         if not one_stage and (more or rest) and claimed < cfg.search.escalate_below:
+            search.drop_ahead()  # the first stage's candidates do not go on: its winner's re-alignment stops
             if finer is not None:  # the network's finer flow: a better start for the search, on every view
                 search.network, first, usable = network_starts(ctx, resize_flow(finer(), (*ctx.shape, 2)))
                 rest = views
@@ -230,8 +214,8 @@ class GeometricRefiner:
             self._reselect(search, ahead=(lambda best: True) if cfg.align.realign else None)  # re-aligned next
         if cfg.align.realign and (search.best.polished or not settled):  # DIS's noise under the spline
             self._realign(search)
-        elif search.ahead is not None:  # started for a winner that was not kept
-            search.ahead[1].cancel()
+        else:
+            search.drop_ahead()  # started for a winner that was not kept
         return search
 
     def _realign(self, search: Search) -> None:
@@ -241,8 +225,7 @@ class GeometricRefiner:
         if ahead is not None and ahead[0] is search.best:
             again = ahead[1].result()
         else:
-            if ahead is not None:
-                ahead[1].cancel()
+            search.drop_ahead()
             again = realign(ctx, search.best)
         if again is not None:
             search.cands = [again if c is search.best else c for c in search.cands]
@@ -334,9 +317,7 @@ class GeometricRefiner:
         scores.update({c.key: ctx.score(c.key, c.flow) for c in search.cands if c.key not in scores})
         search.best = select(search.cands, scores, self.config.selection.plane_margin)
         if ahead is not None and self._workers.count >= 2 and ahead(search.best):
-            if search.ahead is not None:
-                search.ahead[1].cancel()
-            search.ahead = (search.best, self._workers.submit(realign, ctx, search.best))
+            search.realign_ahead(self._workers)
         search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
 
     def _searched_shrunk(self, h: int, w: int) -> bool:

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from projreg.geometry.align import align, pyramid, spline_field
+from projreg.geometry.align import Stopped, align, pyramid, spline_field
 from projreg.geometry.homography import homography_flow
 from projreg.geometry.images import normalize_contrast, texture_weight
 from projreg.geometry.warp import warp_back
@@ -90,6 +90,24 @@ def test_a_tolerance_stops_steps_only_once_they_no_longer_move_the_answer():
     gap = np.linalg.norm(early - every, axis=-1)[inner]
     err, err_once = (np.linalg.norm(f - truth, axis=-1)[inner].mean() for f in (early, once))
     assert gap.max() < 0.1 and err < 0.3 < err_once, (gap.max(), err, err_once)
+
+
+def test_an_alignment_asked_to_stop_raises_at_its_next_step_and_otherwise_answers_as_without():
+    h, w = 96, 128
+    projected = textured(h, w)
+    captured = capture(projected, bent(h, w, 2.0))
+    levels = pyramid(projected, captured, texture_weight(projected, 256.0), (2, 1))
+    start = homography_flow(H_TRUE, h, w)
+    asked = []
+
+    def stop_after(n):
+        return lambda: asked.append(1) or len(asked) > n
+
+    plain = align(levels, start, (6, 5), {2: 4, 1: 3}, 0.01, 1e-4)
+    np.testing.assert_array_equal(align(levels, start, (6, 5), {2: 4, 1: 3}, 0.01, 1e-4, stop=lambda: False), plain)
+    with pytest.raises(Stopped):
+        align(levels, start, (6, 5), {2: 4, 1: 3}, 0.01, 1e-4, stop=stop_after(2))
+    assert len(asked) == 3  # asked before each step: two taken, the third refused
 
 
 def test_align_without_texture_stays_at_its_start():
