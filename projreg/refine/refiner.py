@@ -32,7 +32,8 @@ reads as the algorithm:
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
 8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface
    (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it;
-   started on the pool as soon as such a winner is selected, beside its verification.
+   started on the pool as soon as such a winner is selected, beside its verification, and stopped when the
+   search moves on (:class:`~projreg.refine.search.Search`).
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame and
    ``registered_windows`` of the checks' windows (:func:`~projreg.refine.evidence.registers`); otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
