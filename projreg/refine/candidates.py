@@ -22,12 +22,14 @@ from ..geometry.homography import (
     area_ratio,
     fit_affine,
     fit_homography,
+    fit_step,
     homography_flow,
     rescaled,
 )
 from ..geometry.images import to_gray
 from ..geometry.splines import fit_bspline, fit_detail
 from ..geometry.warp import compose
+from .config import RefineConfig
 from .context import PairContext, flow_distance
 from .evidence import bound_outside
 
@@ -97,29 +99,32 @@ class RefineInfo:
     stages: tuple[str, ...] = ()
 
 
-def network_start(ctx: PairContext, flow: np.ndarray) -> tuple[Start, bool]:
+def network_start(config: RefineConfig, flow: np.ndarray) -> tuple[Start, bool]:
     """The network's start and whether its homography is well conditioned enough to answer with.
 
     The network's flow is fitted everywhere (it carries the network's hypothesis into flat regions;
     the refits keep to the textured pixels). A homography too bent to trust as an answer (strong lens
-    distortion) still starts a refinement; an affine fit stands in when no homography is found."""
-    fit, (h, w) = ctx.config.fit, ctx.shape
-    found = fit_homography(flow, ctx.step, fit.ransac_px, None, math.inf, fit.min_hull)
+    distortion) still starts a refinement; an affine fit stands in when no homography is found. It reads
+    the flow alone, so it runs while the pair's context is built."""
+    fit, (h, w) = config.fit, flow.shape[:2]
+    step = fit_step(h, w, fit.fit_points)  # the context's ``step``
+    found = fit_homography(flow, step, fit.ransac_px, None, math.inf, fit.min_hull)
     usable = found is not None and area_ratio(found[0], h, w) <= fit.max_area_ratio
-    found = found or fit_affine(flow, ctx.step, fit.ransac_px, fit.min_hull)
+    found = found or fit_affine(flow, step, fit.ransac_px, fit.min_hull)
     return Start("network", None if found is None else found[0], flow), usable
 
 
-def network_starts(ctx: PairContext, flow: np.ndarray) -> tuple[Start, list[Start], bool]:
+def network_starts(config: RefineConfig, flow: np.ndarray) -> tuple[Start, list[Start], bool]:
     """The network's start (:func:`network_start`), the first stage's starts (it, when it has a
     homography, and the identity when that is not usable) and whether it is."""
-    network, usable = network_start(ctx, flow)
+    network, usable = network_start(config, flow)
     first = [network] if network.H is not None else []
-    return network, first + ([] if usable else [identity_start(ctx)]), usable
+    return network, first + ([] if usable else [identity_start(flow.shape[:2])]), usable
 
 
-def identity_start(ctx: PairContext) -> Start:
-    return Start("identity", np.eye(3), np.zeros((*ctx.shape, 2), np.float32))
+def identity_start(shape: tuple[int, ...]) -> Start:
+    """The identity's start on a frame of ``shape[:2]``: the captured image as it is."""
+    return Start("identity", np.eye(3), np.zeros((*shape[:2], 2), np.float32))
 
 
 def sift_start(ctx: PairContext, sift: SiftHomography, projected: np.ndarray, captured: np.ndarray) -> Start | None:

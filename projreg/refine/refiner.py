@@ -51,6 +51,7 @@ Convention: flows are float32 ``(H, W, 2)``, forward, projected -> captured, pix
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import replace
 
 import cv2
@@ -142,11 +143,12 @@ class GeometricRefiner:
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
+        fitting = self._workers.submit(network_starts, self.config, flow)  # beside the context
         ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
         if ctx.share < self.config.images.textureless_below:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
             return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, ctx.share)
-        search = self._search(ctx, projected, captured, flow, identity, finer)
+        search = self._search(ctx, projected, captured, fitting, identity, finer)
         return self._verdict(search)
 
     def _search(
@@ -154,14 +156,15 @@ class GeometricRefiner:
         ctx: PairContext,
         projected: np.ndarray,
         captured: np.ndarray,
-        flow: np.ndarray,
+        fitting: Future,
         identity: bool,
         finer: Callable[[], np.ndarray] | None,
     ) -> Search:
         """Propose, refine, score and select, verify, escalate, grow, re-align (module docstring, stages 2-8).
 
-        With ``align.direct`` the first stage aligns its starts directly on ``align.views``; the
-        second adds the DIS-refined candidates of every start and view."""
+        ``fitting``: the network's starts (:func:`~projreg.refine.candidates.network_starts`), found on the
+        pool while the context was built. With ``align.direct`` the first stage aligns its starts directly
+        on ``align.views``; the second adds the DIS-refined candidates of every start and view."""
         cfg, conf_cfg = self.config, self.config.confidence
         measure = conf_cfg.periodic and ctx.side.repeats is None  # once per projected image ...
         periodic = (conf_cfg.periodic_peak, conf_cfg.coarse_peak, conf_cfg.periodic_tiles)
@@ -169,7 +172,7 @@ class GeometricRefiner:
         # ... on the pool, each window size a job, beside the network's start
         jobs = repeat_jobs(ctx.normalised[0], *periodic) if measure else []
         pending = [self._workers.submit(repeats_in, *job) for job in jobs]
-        network, first, usable = network_starts(ctx, flow)
+        network, first, usable = fitting.result()
         views, direct = list(ctx.views()), cfg.align.direct
         first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
         more = identity and (cfg.search.identity or cfg.search.sift)
@@ -193,7 +196,7 @@ class GeometricRefiner:
         if not one_stage and (more or rest) and claimed < cfg.search.escalate_below:
             search.drop_ahead()  # the first stage's candidates do not go on: its winner's re-alignment stops
             if finer is not None:  # the network's finer flow: a better start for the search, on every view
-                search.network, first, usable = network_starts(ctx, resize_flow(finer(), (*ctx.shape, 2)))
+                search.network, first, usable = network_starts(cfg, resize_flow(finer(), (*ctx.shape, 2)))
                 rest = views
             # SIFT's start is found on the pool while the finer start's views are refined beside it
             found = self._workers.submit(self._second_starts, ctx, projected, captured, usable) if more else None
@@ -304,7 +307,7 @@ class GeometricRefiner:
         self, ctx: PairContext, projected: np.ndarray, captured: np.ndarray, usable: bool
     ) -> list[Start]:
         """The identity (unless already in the first stage) and SIFT's homography, as configured."""
-        out = [identity_start(ctx)] if self.config.search.identity and usable else []
+        out = [identity_start(ctx.shape)] if self.config.search.identity and usable else []
         if self._sift is not None:
             found = sift_start(ctx, self._sift, projected, captured)
             out += [found] if found is not None else []
@@ -355,7 +358,8 @@ class GeometricRefiner:
         if self.config.images.verify_full and min(small0.shape[:2]) >= MIN_SIDE:
             ctx = PairContext.build(small0, small1, self.config, self._projected(small0))
             if ctx.share >= self.config.images.textureless_below:
-                search = self._search(ctx, small0, small1, resize_flow(flow, small0.shape), identity, smaller)
+                fitting = self._workers.submit(network_starts, self.config, resize_flow(flow, small0.shape))
+                search = self._search(ctx, small0, small1, fitting, identity, smaller)
                 return self._verdict(self._at_full_size(search, projected, captured))
         pred, info = self.predict_info(small0, small1, resize_flow(flow, small0.shape), identity, smaller)
         h, w = projected.shape[:2]

@@ -44,9 +44,11 @@ class Workers:
         return dis
 
     def dis_flows(self, pairs: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-        """DIS's flow of each ``(image0, image1)`` pair, side by side."""
-        jobs = [self.submit(lambda a, b: self.dis().calc(a, b, None), *pair) for pair in pairs]
-        return [job.result() for job in jobs]
+        """DIS's flow of each ``(image0, image1)`` pair, side by side: the last on this thread, which would
+        otherwise only wait (a pool thread may be busy with work started ahead, e.g. a re-alignment)."""
+        jobs = [self.submit(lambda a, b: self.dis().calc(a, b, None), *pair) for pair in pairs[:-1]]
+        last = [self.dis().calc(*pairs[-1], None)] if pairs else []
+        return [job.result() for job in jobs] + last
 
     def _pool(self) -> ThreadPoolExecutor | None:
         if self.count < 2:
