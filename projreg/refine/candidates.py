@@ -248,7 +248,7 @@ def realign(ctx: PairContext, best: Candidate, stop: Callable[[], bool] | None =
         return None
     trust = cfg.align.trust_px
     plane = homography_flow(found[0], h, w)
-    flow = aligned(ctx, "normalised", plane + smooth_rest(ctx, best.flow - plane), stop)
+    flow = aligned(ctx, "normalised", plane + smooth_rest(ctx, best.flow - plane), stop, cfg.align.realign_coarse)
     near_data = ctx.near_data()  # as the detail level fades
     flow = best.flow + near_data[..., None] * (flow - best.flow)  # no change where the images carry no texture
     gap = flow_distance(flow, best.flow)[ctx.textured]
@@ -267,13 +267,18 @@ def smooth_rest(ctx: PairContext, rest: np.ndarray) -> np.ndarray:
     return fit_bspline(rest, ctx.evidence, sf.detail_grid, ctx.step, sf.robust_px, sf.ridge, sf.iterations, bend)
 
 
-def aligned(ctx: PairContext, view: str, start: np.ndarray, stop: Callable[[], bool] | None = None) -> np.ndarray:
+def aligned(
+    ctx: PairContext, view: str, start: np.ndarray, stop: Callable[[], bool] | None = None, coarse: bool = True
+) -> np.ndarray:
     """``start`` plus the coarse spline aligned coarse to fine on ``view``, then the fine one at full
-    size (``align.detail``): :func:`~projreg.geometry.align.align` (``stop``: its)."""
+    size (``align.detail``): :func:`~projreg.geometry.align.align` (``stop``: its). ``coarse`` off (with
+    ``align.detail``): the fine spline alone, for a start already within about a pixel."""
     al, sf = ctx.config.align, ctx.config.surface
     levels = ctx.pyramid(view)
     steps = dict(zip(al.levels, al.steps, strict=True))
-    flow = align(levels, start, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance, stop)
+    flow = start
+    if coarse or not al.detail:
+        flow = align(levels, flow, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance, stop)
     if al.detail:
         fine = {1: al.detail_steps}
         flow = align(levels, flow, sf.detail_grid, fine, al.detail_bend, al.ridge, al.max_step, al.tolerance, stop)

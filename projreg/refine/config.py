@@ -55,6 +55,8 @@ class AlignConfig:
     realign: bool = True  # align the selected answer again from its homography (DIS's noise left out) ...
     trust_px: float = 1.0  # ... kept where it moves the textured pixels at most this far (selection.plane_agree_share)
     bend_start: float = 0.3  # ... starting from its homography + a P-spline of the rest with this bend (fine grid)
+    realign_coarse: bool = False  # ... aligning the coarse grid over the pyramid first (off: the fine grid alone,
+    # at full size: the start is within a pixel; without align.detail the coarse grid is aligned either way)
     direct: bool = False  # the first stage aligns the network's start directly, no DIS; the DIS search of
     # every start and view follows only when it claims less than search.escalate_below of the texture
     views: tuple[str, ...] = ("normalised",)  # the views the first stage aligns on, with direct ...

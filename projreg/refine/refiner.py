@@ -224,8 +224,12 @@ class GeometricRefiner:
 
     def _realign(self, search: Search) -> None:
         """The winner replaced by its re-alignment (:func:`~projreg.refine.candidates.realign`) when kept;
-        the one started ahead where it is this winner's."""
+        the one started ahead where it is this winner's. A winner whose checks verify less than
+        ``registered_above`` of the frame is not re-aligned: there is no verified basin to refine it in."""
         ctx, ahead = search.ctx, search.ahead
+        if (search.conf >= CONFIDENT).mean() < self.config.confidence.registered_above:
+            search.drop_ahead()
+            return
         if ahead is not None and ahead[0] is search.best:
             again = ahead[1].result()
         else:
