@@ -20,15 +20,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import cv2
 import numpy as np
 
 from .gram import gram
 from .linalg import one_blas_thread, solve_spd
-from .linearised import linearise
+from .linearised import TEXTURED, linearise
 from .splines import bspline_basis
+
+TRUST_STRIDE = 4  # px of a level: a step's displacement of the textured pixels is read on every 4th pixel each way
+# (a spline whose knots lie 30 px or more apart is smooth at that scale)
 
 
 class Stopped(Exception):
@@ -45,6 +48,12 @@ class Level:
     captured: np.ndarray
     gradient: tuple[np.ndarray, np.ndarray]
     weight: np.ndarray
+
+    @cached_property
+    def textured(self) -> np.ndarray:
+        """Bool ``(h', w')``: the textured pixels (weight over ``TEXTURED``) of every ``TRUST_STRIDE``-th row
+        and column, where a step's displacement is read (``align(on_texture=True)``)."""
+        return self.weight[::TRUST_STRIDE, ::TRUST_STRIDE] > TEXTURED
 
 
 def pyramid(
@@ -106,6 +115,7 @@ def align(
     max_step: float = 1.0,
     tolerance: float = 0.0,
     stop: Callable[[], bool] | None = None,
+    on_texture: bool = False,
 ) -> np.ndarray:
     """The flow ``base + spline`` aligning the pair of ``levels`` (:func:`pyramid`), coarse to fine.
 
@@ -122,6 +132,9 @@ def align(
             than this, in pixels of its level (0: every step is taken).
         stop: asked before each step; once it says True the alignment raises :class:`Stopped` (a caller that
             no longer wants the answer frees the thread within a step).
+        on_texture: ``max_step`` bounds how far a step moves the textured pixels (read on a grid, ``TRUST_STRIDE``)
+            instead of how far it moves any control value: a control value over a flat region, which the
+            data do not constrain, no longer shortens the step for all.
 
     Returns:
         float32 ``(H, W, 2)``: ``base`` plus the fitted spline.
@@ -136,7 +149,7 @@ def align(
         for _ in range(iterations[factor]):
             if stop is not None and stop():
                 raise Stopped
-            delta = _step(level, start, control, grid, reg, max_step)
+            delta = _step(level, start, control, grid, reg, max_step, on_texture)
             control = control + delta
             if float(np.abs(delta).max()) * level.scale < tolerance:  # converged at this level
                 break
@@ -144,7 +157,13 @@ def align(
 
 
 def _step(
-    level: Level, start: np.ndarray, control: np.ndarray, grid: tuple[int, int], reg: np.ndarray, max_step: float
+    level: Level,
+    start: np.ndarray,
+    control: np.ndarray,
+    grid: tuple[int, int],
+    reg: np.ndarray,
+    max_step: float,
+    on_texture: bool = False,
 ) -> np.ndarray:
     """One robust Gauss-Newton update of the control values (module docstring)."""
     kx, ky = grid
@@ -162,7 +181,18 @@ def _step(
     current = np.concatenate([control[..., 0].ravel(), control[..., 1].ravel()])
     penalty = np.kron(np.eye(2), reg * (np.trace(normal) / (2 * k) + 1e-9))
     delta = solve_spd(normal + penalty, -rhs - penalty @ current)
-    reach = float(np.abs(delta).max()) * s  # the largest move of a control value, in this level's pixels
-    if reach > max_step:
-        delta *= max_step / reach
-    return np.stack([delta[:k].reshape(ky, kx), delta[k:].reshape(ky, kx)], axis=-1)
+    step = np.stack([delta[:k].reshape(ky, kx), delta[k:].reshape(ky, kx)], axis=-1)  # [ky, kx, 2]
+    reach = _reach(level, step, By, Bx) if on_texture else float(np.abs(delta).max())
+    reach *= s  # the largest move, in this level's pixels
+    return step * (max_step / reach) if reach > max_step else step
+
+
+def _reach(level: Level, step: np.ndarray, By: np.ndarray, Bx: np.ndarray) -> float:
+    """The farthest a spline step ``(ky, kx, 2)`` moves a textured pixel of ``level`` (:attr:`Level.textured`),
+    in control units; the farthest control value's move where the level has no texture."""
+    mask = level.textured
+    if not mask.any():
+        return float(np.abs(step).max())
+    rows, cols = By[::TRUST_STRIDE], Bx[::TRUST_STRIDE]
+    u, v = (rows @ step[..., i] @ cols.T for i in range(2))  # [h', w'] each
+    return float(np.sqrt((u * u + v * v)[mask].max()))

@@ -110,7 +110,7 @@ class SplineDesign:
         reg = ridge * np.eye(kx * ky) + bend * self.penalty
         fit = np.zeros_like(f)
         for it in range(iterations):
-            wi = w0 if it == 0 else w0 / (1 + (np.linalg.norm(f - fit, axis=-1) / robust) ** 2)  # [h', w']
+            wi = w0 if it == 0 else w0 / (1 + (_lengths(f - fit) / robust) ** 2)  # [h', w']
             normal = (self.byy.T @ (wi @ self.bxx)).reshape(ky, ky, kx, kx)  # [i, k, j, l]
             normal = normal.transpose(0, 2, 1, 3).reshape(kx * ky, kx * ky)  # rows (i, j), columns (k, l)
             rhs = np.stack([self.by.T @ (f[..., i] * wi) @ self.bx for i in range(2)], axis=-1)  # [ky, kx, 2]
@@ -121,6 +121,12 @@ class SplineDesign:
     def evaluate(self, c: np.ndarray) -> np.ndarray:
         """The spline of control values ``c`` at every pixel, float32 ``(H, W, 2)``."""
         return np.stack([self.By @ c[..., i] @ self.Bx.T for i in range(2)], axis=-1).astype(np.float32)
+
+
+def _lengths(v: np.ndarray) -> np.ndarray:
+    """The length of each 2-vector of ``v`` ``(..., 2)``: ``np.linalg.norm(v, axis=-1)`` to the bit, a fifth of
+    its time (numpy reduces a last axis of two slowly)."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1])
 
 
 def near_data_ramp(weight: np.ndarray, grid: tuple[int, int], fade: tuple[float, float]) -> np.ndarray:
@@ -171,7 +177,7 @@ def fit_detail(
     colour = ((y // block) + (x // block)) % 2 > 0  # [h', w']
 
     def held_out(pred: np.ndarray, mask: np.ndarray) -> float:
-        e = np.linalg.norm(f - pred, axis=-1)
+        e = _lengths(f - pred)
         return float((w0 * mask * np.log1p((e / robust) ** 2)).sum())
 
     with one_blas_thread():

@@ -276,12 +276,12 @@ def aligned(
     al, sf = ctx.config.align, ctx.config.surface
     levels = ctx.pyramid(view)
     steps = dict(zip(al.levels, al.steps, strict=True))
+    rest = (al.ridge, al.max_step, al.tolerance, stop, al.step_on_texture)  # align's remaining arguments
     flow = start
     if coarse or not al.detail:
-        flow = align(levels, flow, sf.grid, steps, al.bend, al.ridge, al.max_step, al.tolerance, stop)
+        flow = align(levels, flow, sf.grid, steps, al.bend, *rest)
     if al.detail:
-        fine = {1: al.detail_steps}
-        flow = align(levels, flow, sf.detail_grid, fine, al.detail_bend, al.ridge, al.max_step, al.tolerance, stop)
+        flow = align(levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, *rest)
     return flow
 
 

@@ -67,7 +67,8 @@ class AlignConfig:
     # of the rest of its flow) instead of its homography: a tracked frame's, whose start is the last answer
     levels: tuple[int, ...] = (4, 2, 1)  # pyramid factors, coarsest first
     steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level, at most (align.tolerance)
-    max_step: float = 1.0  # the most one step moves a control value, in pixels of its level
+    max_step: float = 1.0  # the most one step moves a control value, in pixels of its level ...
+    step_on_texture: bool = False  # ... or, on, a textured pixel (a value over a flat region shortens no step)
     tolerance: float = 0.02  # a level's steps stop once one moves no control value farther (px of the level)
     bend: float = 0.01  # second-difference penalty of the coarse grid (surface.grid), relative
     ridge: float = 1e-4  # pull of every control value towards 0, relative

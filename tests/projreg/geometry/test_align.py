@@ -125,3 +125,26 @@ def test_spline_field_is_the_tensor_product_spline():
     field = spline_field(control, 40, 50)
     np.testing.assert_allclose(field[..., 0], 1.5, atol=1e-5)
     assert field[..., 1].max() > 0.5 and field[..., 1].min() >= -1e-6
+
+
+def test_steps_bounded_on_the_texture_are_not_shortened_by_a_flat_region():
+    """Content on the left half only: control values over the flat right half move freely (only the bend
+    holds them), and bounding every step by the farthest control value (``max_step``) shortens the steps
+    for the textured half too. Bounded by how far the textured pixels move (``on_texture``), the same few
+    steps close more of the distance there."""
+    h, w = 192, 256
+    projected = textured(h, w)
+    projected[:, w // 2 :] = 120
+    truth = bent(h, w, 4.0)
+    captured = capture(projected, truth)
+    n0, n1 = normalize_contrast(projected, 8.0), normalize_contrast(captured, 8.0)
+    levels = pyramid(n0, n1, texture_weight(projected, 256.0), (4, 2, 1))
+    start = homography_flow(H_TRUE @ np.array([[1, 0, 3.0], [0, 1, -2.5], [0, 0, 1]]), h, w)
+    steps = {4: 2, 2: 2, 1: 2}
+    inner = np.zeros((h, w), bool)
+    inner[12:-12, 12 : w // 2 - 12] = True
+    err = {
+        on: np.linalg.norm(align(levels, start, (6, 5), steps, 0.01, 1e-4, on_texture=on) - truth, axis=-1)[inner]
+        for on in (False, True)
+    }
+    assert err[True].mean() < 0.6 * err[False].mean(), (err[True].mean(), err[False].mean())
