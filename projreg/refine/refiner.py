@@ -30,10 +30,11 @@ reads as the algorithm:
    (``finer``) with DIS on every view.
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
-8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface
-   (:func:`~projreg.refine.candidates.realign`), kept where it stays within ``align.trust_px`` of it;
-   started on the pool as soon as such a winner is selected, beside its verification, and stopped when the
-   search moves on (:class:`~projreg.refine.search.Search`).
+8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface, the
+   fine grid alone at full size (:func:`~projreg.refine.candidates.realign`), kept where it stays within
+   ``align.trust_px`` of it; started on the pool as soon as such a winner is selected, beside its
+   verification, and stopped when the search moves on (:class:`~projreg.refine.search.Search`). A winner
+   whose checks verify nothing is left as it is.
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame and
    ``registered_windows`` of the checks' windows (:func:`~projreg.refine.evidence.registers`); otherwise
    nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
