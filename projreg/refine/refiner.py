@@ -259,7 +259,7 @@ class GeometricRefiner:
         verified = claimed.mean() >= cfg.registered_above  # some region verified: the search's answer stands
         why = "" if self._registers(claimed) else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
-            conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers.dis_flows)
+            conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers)
             claimed = conf >= CONFIDENT
             search.stages.append("bridge")
         if not verified and search.network.H is not None:

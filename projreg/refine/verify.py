@@ -15,7 +15,8 @@ from ..prediction import CONFIDENT
 from .candidates import Candidate
 from .confidence import gap_confidence, pixel_confidence
 from .context import DisFlows, PairContext, flow_distance
-from .selection import ambiguity
+from .selection import ambiguity, rivals
+from .workers import Workers
 
 
 def confidence(
@@ -38,9 +39,14 @@ def checks(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate ``best``'s check maps: local NCC, forward-backward residual (px, DIS's flows ``dis``) and
     the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
+    margin = ctx.config.confidence.rival_margin
     ncc = ctx.ncc(best.key, best.flow)
     residual = ctx.round_trip(dis, best.key, best.flow)
-    return ncc, residual, ambiguity(ctx, cands, scores, best, ncc, ctx.config.confidence.rival_margin)
+    # the spread is kept by winner and rivals: the bridge asks for the same checks again
+    key = f"spread:{best.key}:" + ",".join(c.key for c in rivals(cands, scores, best, margin))
+    if key not in ctx.memo:
+        ctx.memo[key] = ambiguity(ctx, cands, scores, best, ncc, margin)
+    return ncc, residual, ctx.memo[key]
 
 
 def bridged(
@@ -50,23 +56,25 @@ def bridged(
     cands: list[Candidate],
     scores: dict[str, float],
     repeats: np.ndarray | None,
-    dis: DisFlows,
+    workers: Workers,
 ) -> np.ndarray:
     """``conf`` raised to the checks averaged across wide flat gaps
     (:func:`~projreg.refine.confidence.gap_confidence`) where ``best`` stays within ``bridge_px`` of the
-    homography fitted to it on its claimed pixels; ``conf`` itself when that fit fails.
+    homography fitted to it on its claimed pixels; ``conf`` itself when that fit fails. The fit runs on
+    ``workers``' pool beside the gap map.
 
     In a flat gap the answer is the surface model's interpolation; where the plane of the verified
     region says the same, two models of the gap agree and the gap is claimed."""
     cfg, (h, w) = ctx.config, ctx.shape
     fit = cfg.fit
-    found = fit_homography(
-        best.flow, ctx.refit_step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull
+    fitting = workers.submit(
+        fit_homography, best.flow, ctx.refit_step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull
     )
+    radius = cfg.confidence.radius * max(h, w)
+    gap = gap_confidence(ctx.evidence, *checks(ctx, cands, scores, best, workers.dis_flows), radius, cfg.confidence)
+    found = fitting.result()
     if found is None:
         return conf
-    radius = cfg.confidence.radius * max(h, w)
-    gap = gap_confidence(ctx.evidence, *checks(ctx, cands, scores, best, dis), radius, cfg.confidence)
     if repeats is not None:
         gap = np.where(repeats, 0.0, gap)
     agree = flow_distance(best.flow, homography_flow(found[0], h, w)) < cfg.confidence.bridge_px
