@@ -61,9 +61,19 @@ def divide_albedo(gray0: np.ndarray, warped: np.ndarray, window: int) -> np.ndar
     wall's stripes or bricks wider than half the window survive the median, the texture-scale
     structure a small misalignment leaves in the ratio does not. Returns float32 ``(H, W)``.
     """
-    ratio = np.log(warped.astype(np.float32) + 8.0) - np.log(gray0.astype(np.float32) + 8.0)
+    ratio = _log8(warped) - _log8(gray0)
     coded = np.clip(np.round(128 + 40 * ratio), 0, 255).astype(np.uint8)  # OpenCV's large medians take uint8
-    return warped / np.exp((cv2.medianBlur(coded, window).astype(np.float32) - 128) / 40)
+    return warped / cv2.LUT(cv2.medianBlur(coded, window), _REFLECTANCE)
+
+
+_LEVELS = np.arange(256, dtype=np.float32)  # the uint8 grey levels
+_LOG8 = np.log(_LEVELS + 8.0)  # log(g + 8) of each, looked up rather than computed pixel by pixel ...
+_REFLECTANCE = np.exp((_LEVELS - 128) / 40)  # ... and the reflectance each code of the median stands for
+
+
+def _log8(gray: np.ndarray) -> np.ndarray:
+    """``log(gray + 8)``, float32 (a table lookup for uint8 images: the same values)."""
+    return cv2.LUT(gray, _LOG8) if gray.dtype == np.uint8 else np.log(gray.astype(np.float32) + 8.0)
 
 
 def near(mask: np.ndarray, radius: float) -> np.ndarray:
