@@ -38,6 +38,16 @@ def test_divide_albedo_removes_a_wide_reflectance_pattern_and_keeps_a_misalignme
     assert abs(ncc(divide_albedo(gray0, moved, 31)) - ncc(moved)) < 0.02
 
 
+def test_divide_albedo_gives_uint8_images_the_same_values_as_float_ones():
+    """uint8 images take table lookups (the refinement's warped captures); float ones the formula."""
+    rng = np.random.default_rng(5)
+    gray0 = rng.integers(0, 256, (64, 80), dtype=np.uint8)
+    warped = cv2.GaussianBlur(rng.integers(0, 256, (64, 80), dtype=np.uint8), (0, 0), 1.5)
+    looked_up = divide_albedo(gray0, warped, 15)
+    assert looked_up.dtype == np.float32
+    np.testing.assert_array_equal(looked_up, divide_albedo(gray0.astype(np.float32), warped.astype(np.float32), 15))
+
+
 def test_local_statistics_taken_on_the_shrunk_images_agree_with_the_full_size_ones():
     # a photograph (truth nobody here chose) against itself moved by a pixel under noise: the local NCC
     # whose means are taken on the images shrunk twice reads as the full-size one to a few thousandths
