@@ -46,6 +46,11 @@ def test_divide_albedo_gives_uint8_images_the_same_values_as_float_ones():
     looked_up = divide_albedo(gray0, warped, 15)
     assert looked_up.dtype == np.float32
     np.testing.assert_array_equal(looked_up, divide_albedo(gray0.astype(np.float32), warped.astype(np.float32), 15))
+    # the docstring's formula, written out: the median of the coded log ratio is the reflectance
+    ratio = np.log(warped.astype(np.float32) + 8.0) - np.log(gray0.astype(np.float32) + 8.0)
+    coded = np.clip(np.round(128 + 40 * ratio), 0, 255).astype(np.uint8)
+    reflectance = np.exp((cv2.medianBlur(coded, 15).astype(np.float32) - 128) / 40)
+    np.testing.assert_array_equal(looked_up, warped / reflectance)
 
 
 def test_local_statistics_taken_on_the_shrunk_images_agree_with_the_full_size_ones():
