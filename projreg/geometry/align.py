@@ -116,6 +116,8 @@ def align(
     tolerance: float = 0.0,
     stop: Callable[[], bool] | None = None,
     on_texture: bool = False,
+    cauchy: float = 1.0,
+    last: tuple[int, float] = (0, 1.0),
 ) -> np.ndarray:
     """The flow ``base + spline`` aligning the pair of ``levels`` (:func:`pyramid`), coarse to fine.
 
@@ -135,6 +137,11 @@ def align(
         on_texture: ``max_step`` bounds how far a step moves the textured pixels (read on a grid, ``TRUST_STRIDE``)
             instead of how far it moves any control value: a control value over a flat region, which the
             data do not constrain, no longer shortens the step for all.
+        cauchy: the robust weights' Cauchy scale, in standard deviations of the level's residuals.
+        last: the finest level's last ``last[0]`` steps (of its ``iterations``) weigh at ``last[1]``
+            standard deviations instead (graduated robustness: a wide Cauchy converges in few steps, a
+            narrow one lets go of structured outliers, occluders or reflectance edges, that pulled it).
+            A level stopped by ``tolerance`` still takes these steps.
 
     Returns:
         float32 ``(H, W, 2)``: ``base`` plus the fitted spline.
@@ -146,13 +153,16 @@ def align(
         level = levels[factor]
         h, w = level.projected.shape
         start = base if factor == 1 else cv2.resize(base, (w, h), interpolation=cv2.INTER_AREA) * level.scale
-        for _ in range(iterations[factor]):
-            if stop is not None and stop():
-                raise Stopped
-            delta = _step(level, start, control, grid, reg, max_step, on_texture)
-            control = control + delta
-            if float(np.abs(delta).max()) * level.scale < tolerance:  # converged at this level
-                break
+        n = iterations[factor]
+        narrow = min(last[0], n) if factor == 1 else 0
+        for count, width in ((n - narrow, cauchy), (narrow, last[1])):
+            for _ in range(count):
+                if stop is not None and stop():
+                    raise Stopped
+                delta = _step(level, start, control, grid, reg, max_step, on_texture, width)
+                control = control + delta
+                if float(np.abs(delta).max()) * level.scale < tolerance:  # converged at this level and width
+                    break
     return base + spline_field(control, *base.shape[:2])
 
 
@@ -164,8 +174,10 @@ def _step(
     reg: np.ndarray,
     max_step: float,
     on_texture: bool = False,
+    cauchy: float = 1.0,
 ) -> np.ndarray:
-    """One robust Gauss-Newton update of the control values (module docstring)."""
+    """One robust Gauss-Newton update of the control values (module docstring), the Cauchy at ``cauchy``
+    standard deviations of the residuals."""
     kx, ky = grid
     k = kx * ky
     h, w = level.projected.shape
@@ -173,7 +185,9 @@ def _step(
     s = level.scale
     columns = np.stack([control[..., i] @ Bx.T for i in range(2)]) * s  # [2, ky, w], this level's pixels
     products = np.empty((5, h, w))  # [5, h, w]: w gx gx, w gx gy, w gy gy, w gx r, w gy r
-    linearise(level.projected, level.captured, level.gradient, level.weight, start, By, columns, 0.5 * s, products)
+    linearise(
+        level.projected, level.captured, level.gradient, level.weight, start, By, columns, 0.5 * s, products, cauchy
+    )
     with one_blas_thread():
         blocks = gram(h, w, grid).blocks(products[:3])  # [3, k, k]
         normal = np.block([[blocks[0], blocks[1]], [blocks[1].T, blocks[2]]])

@@ -34,6 +34,7 @@ def linearise(
     columns: np.ndarray,
     slope: float,
     out: np.ndarray,
+    width: float = 1.0,
 ) -> None:
     """The robustly weighted products of one Gauss-Newton step at the flow ``start + rows @ columns``,
     written into ``out``.
@@ -49,8 +50,9 @@ def linearise(
             the two gradients, in control values of the finest level).
         out: float64 ``(5, h, w)``, overwritten: ``w gx gx, w gx gy, w gy gy, w gx r, w gy r`` with ``r``
             the residual, ``g`` its derivative in the flow and ``w`` the texture weight inside the
-            captured frame divided by ``1 + (r / s)^2`` (Cauchy; ``s``: the residuals' median absolute
-            deviation over the textured pixels, about ``MAD_SAMPLES`` of them, as a standard deviation).
+            captured frame divided by ``1 + (r / s)^2`` (Cauchy; ``s``: ``width`` times the residuals' median
+            absolute deviation over the textured pixels, about ``MAD_SAMPLES`` of them, as a standard deviation).
+        width: the Cauchy's scale in standard deviations of the residuals.
     """
     h, w = projected.shape
     mapx, mapy = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
@@ -61,7 +63,7 @@ def linearise(
     n = _residual(
         projected, warped, texture, mapx, mapy, captured.shape[0], captured.shape[1], residual, weight, spread
     )
-    scale = MAD_TO_SIGMA * float(np.median(spread[: n : max(1, n // MAD_SAMPLES)])) + MIN_SCALE if n else 1.0
+    scale = width * MAD_TO_SIGMA * float(np.median(spread[: n : max(1, n // MAD_SAMPLES)])) + MIN_SCALE if n else 1.0
     _products(warped, residual, weight, gradient[0], gradient[1], slope, scale, out)
 
 

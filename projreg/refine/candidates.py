@@ -276,12 +276,13 @@ def aligned(
     al, sf = ctx.config.align, ctx.config.surface
     levels = ctx.pyramid(view)
     steps = dict(zip(al.levels, al.steps, strict=True))
-    rest = (al.ridge, al.max_step, al.tolerance, stop, al.step_on_texture)  # align's remaining arguments
+    rest = (al.ridge, al.max_step, al.tolerance, stop, al.step_on_texture, al.cauchy)  # align's other arguments
     flow = start
     if coarse or not al.detail:
         flow = align(levels, flow, sf.grid, steps, al.bend, *rest)
     if al.detail:
-        flow = align(levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, *rest)
+        last = (al.narrow_steps, al.narrow_cauchy)
+        flow = align(levels, flow, sf.detail_grid, {1: al.detail_steps}, al.detail_bend, *rest, last)
     return flow
 
 

@@ -69,6 +69,10 @@ class AlignConfig:
     steps: tuple[int, ...] = (6, 4, 3)  # Gauss-Newton steps at each level, at most (align.tolerance)
     max_step: float = 1.0  # the most one step moves a control value, in pixels of its level ...
     step_on_texture: bool = False  # ... or, on, a textured pixel (a value over a flat region shortens no step)
+    cauchy: float = 1.0  # the robust weights' Cauchy scale, in standard deviations of the residuals, ...
+    narrow_steps: int = 0  # ... except on the fine grid's last this many steps (align.detail), at ...
+    narrow_cauchy: float = 1.0  # ... this scale: a wide Cauchy converges in fewer steps, a narrow one lets go
+    # of the occluders and reflectance edges a wide one let pull the surface
     tolerance: float = 0.02  # a level's steps stop once one moves no control value farther (px of the level)
     bend: float = 0.01  # second-difference penalty of the coarse grid (surface.grid), relative
     ridge: float = 1e-4  # pull of every control value towards 0, relative
@@ -191,12 +195,19 @@ class RefineConfig:
             "confidence.shrunk_sigma": self.confidence.shrunk_sigma,
             "align.trust_px": al.trust_px,
             "align.max_step": al.max_step,
+            "align.cauchy": al.cauchy,
+            "align.narrow_cauchy": al.narrow_cauchy,
         }
         for name, value in positive.items():
             if not value > 0:
                 raise ProjregError(f"refine {name} must be > 0, got {value}")
         if not al.tolerance >= 0:
             raise ProjregError(f"refine align.tolerance must be >= 0, got {al.tolerance}")
+        if not 0 <= al.narrow_steps <= al.detail_steps:
+            raise ProjregError(
+                f"refine align.narrow_steps must be in [0, align.detail_steps = {al.detail_steps}], "
+                f"got {al.narrow_steps}"
+            )
         for name, views in (
             ("align.views", al.views),
             ("align.polish", al.polish),
@@ -255,7 +266,9 @@ class Quality:
 
 # ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and
 # the plain images, the normalised alignment polished by DIS on its view and the plain one on the albedo
-# view (each alignment's steps stop once they no longer move it, ``align.tolerance``); where that verifies
+# view (each alignment's steps stop once they no longer move it, ``align.tolerance``; their robust weights
+# wide, 2.385 standard deviations, which converges in fewer steps, but for the fine grid's last two steps
+# at one, which let go of the occluders and reflectance edges the wide ones let pull it); where that verifies
 # less than half of the visible texture, the network again at up to 512 px and ``accurate``'s search from
 # it (a first stage that verifies more has found the frame's basin: its verified plane grows over the
 # rest, and it is re-aligned, below 85 %); a pair larger than 512 px is searched shrunk to 512 px and
@@ -268,7 +281,14 @@ class Quality:
 ACCURATE = RefineConfig()
 BALANCED = ACCURATE.with_sections(
     images={"max_side": 512, "verify_full": True},
-    align={"direct": True, "views": ("normalised", "plain")},
+    align={
+        "direct": True,
+        "views": ("normalised", "plain"),
+        "steps": (6, 4, 1),
+        "detail_steps": 5,
+        "cauchy": 2.385,
+        "narrow_steps": 2,
+    },
     search={"escalate_below": 0.5, "settle_at": 0.85},
 )
 FAST = RefineConfig(

@@ -148,3 +148,39 @@ def test_steps_bounded_on_the_texture_are_not_shortened_by_a_flat_region():
         for on in (False, True)
     }
     assert err[True].mean() < 0.6 * err[False].mean(), (err[True].mean(), err[False].mean())
+
+
+def test_narrow_last_steps_let_go_of_occluders_a_wide_cauchy_let_pull():
+    """Bright discs over the captured image (edges the projected image does not have): the alignment with
+    a wide Cauchy (2.385 standard deviations) lets their edges pull the surface beside them; its last two
+    fine steps at one standard deviation (``last``) end as close to the truth there as narrow steps
+    throughout, whose slower convergence the wide ones were for."""
+    h, w = 192, 256
+    projected = textured(h, w)
+    truth = bent(h, w, 4.0)
+    captured = capture(projected, truth)
+    rng = np.random.default_rng(3)
+    discs = np.zeros((h, w), np.uint8)
+    for _ in range(8):
+        centre = (int(rng.integers(20, w - 20)), int(rng.integers(20, h - 20)))
+        cv2.circle(discs, centre, int(rng.integers(10, 22)), 1, -1)
+    captured[discs > 0] = 230
+    start = homography_flow(H_TRUE @ np.array([[1, 0, 1.5], [0, 1, -1.0], [0, 0, 1]]), h, w)
+    levels = pyramid(
+        normalize_contrast(projected, 8.0),
+        normalize_contrast(captured, 8.0),
+        texture_weight(projected, 256.0),
+        (4, 2, 1),
+    )
+    seen = np.zeros((h, w), bool)
+    seen[12:-12, 12:-12] = True  # the border sees the reflected surround
+    seen &= discs == 0
+
+    def tail(cauchy, fine_steps, last=(0, 1.0)):
+        flow = align(levels, start, (6, 5), {4: 6, 2: 4, 1: 1}, 0.01, 1e-4, tolerance=0.02, cauchy=cauchy)
+        flow = align(levels, flow, (14, 11), {1: fine_steps}, 0.1, 1e-4, tolerance=0.02, cauchy=cauchy, last=last)
+        return float(np.percentile(np.linalg.norm(flow - truth, axis=-1)[seen], 99))
+
+    wide, graduated, narrow = tail(2.385, 5), tail(2.385, 5, (2, 1.0)), tail(1.0, 6)
+    assert graduated < 0.8 * wide, (graduated, wide)
+    assert graduated < 1.1 * narrow, (graduated, narrow)

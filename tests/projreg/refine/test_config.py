@@ -22,6 +22,11 @@ from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUA
         ({"selection": {"plane_margin": -0.1}}, "selection.plane_margin"),
         ({"selection": {"plane_agree_px": -1.0}}, "selection.plane_agree_px"),
         ({"confidence": {"radius": 0}}, "confidence.radius"),
+        ({"align": {"cauchy": 0.0}}, "align.cauchy must be > 0"),
+        (
+            {"align": {"detail_steps": 4, "narrow_steps": 5}},
+            r"align.narrow_steps must be in \[0, align.detail_steps = 4\]",
+        ),
         ({"confidence": {"registered_windows": -1.0}}, "confidence.registered_windows"),
         ({"align": {"views": ("normalized",)}}, "align.views names views normalised, plain, albedo"),
         ({"align": {"polish": ("plane",)}}, "align.polish names views"),
