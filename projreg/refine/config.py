@@ -267,7 +267,7 @@ class Quality:
 # ``balanced`` (the default): the network at 256 px, its start aligned directly to the normalised and
 # the plain images, the normalised alignment polished by DIS on its view and the plain one on the albedo
 # view (each alignment's steps stop once they no longer move it, ``align.tolerance``; their robust weights
-# wide, 2.385 standard deviations, which converges in fewer steps, but for the fine grid's last two steps
+# wide, 2.385 standard deviations, which converges in fewer steps, but for the fine grid's last three steps
 # at one, which let go of the occluders and reflectance edges the wide ones let pull it); where that verifies
 # less than half of the visible texture, the network again at up to 512 px and ``accurate``'s search from
 # it (a first stage that verifies more has found the frame's basin: its verified plane grows over the
@@ -285,9 +285,9 @@ BALANCED = ACCURATE.with_sections(
         "direct": True,
         "views": ("normalised", "plain"),
         "steps": (6, 4, 1),
-        "detail_steps": 5,
+        "detail_steps": 6,
         "cauchy": 2.385,
-        "narrow_steps": 2,
+        "narrow_steps": 3,
     },
     search={"escalate_below": 0.5, "settle_at": 0.85},
 )
