@@ -175,6 +175,7 @@ def versus(report: dict) -> str:
 COMPENSATION = (
     ("comp PSNR dB", "comp_psnr"),
     ("comp SSIM", "comp_ssim"),
+    ("claimed only: comp PSNR", "comp_psnr_claimed"),
     ("geo PSNR", "geo_psnr"),
     ("photo PSNR", "photo_psnr"),
     ("geo SSIM", "geo_ssim"),

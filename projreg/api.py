@@ -23,7 +23,7 @@ import numpy as np
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import flow_to_captured, frame_scale, resize_to
-from .inference.compensate import compensate as _prewarp
+from .inference.compensate import check_aspect, prewarp
 from .inference.radiometric import calibrate, solve
 from .inference.register import Registration, check_image, register_pairs
 from .inference.runtime import DEFAULT_BACKEND, open_network
@@ -92,7 +92,7 @@ class Registrar:
         def full(a: np.ndarray, b: np.ndarray) -> Prediction:
             reg = self.register(a, b)
             timings.update(reg.timings)
-            return Prediction(reg.flow, reg.claimed, reg.registered, reg.reason)
+            return Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
 
         tracker, first = Tracker(full, self.refiner), None
         for projected, captured in frames:
@@ -109,7 +109,7 @@ class Registrar:
             flow = flow_to_captured(pred.flow, frame_scale(a.shape, b.shape))
             claimed = np.zeros(a.shape[:2], bool) if pred.claimed is None else pred.claimed
             yield Registration(
-                flow, claimed, None, pred.registered, pred.reason, b.shape[:2], dict(timings), tracker.last
+                flow, claimed, pred.confidence, pred.registered, pred.reason, b.shape[:2], dict(timings), tracker.last
             )
 
 
@@ -121,13 +121,25 @@ def compensate(
     white: np.ndarray | None = None,
     black: np.ndarray | None = None,
     gamma: float = 2.2,
+    coverage: str = "complete",
+    min_confidence: float = 0.0,
 ) -> np.ndarray:
     """The projector image that makes the camera see ``content`` (uint8 RGB, spanning the camera frame,
-    any size), ``fill`` where no claimed pixel lands; with ``white`` and ``black`` (the camera's photos
-    of a full-white and a full-black projection) also corrected for the surface's colour and light, as
-    ``projreg compensate --photometric``. Returns uint8 RGB on the projected grid."""
+    any size, of the frame's aspect), as ``projreg compensate``: by default content on every projector
+    pixel whose flow lands in the camera frame, ``fill`` elsewhere, and a registration that did not
+    register projected as it is (``coverage="claimed"``: only the claimed pixels; ``min_confidence``:
+    only where the confidence reaches it; :mod:`projreg.inference.compensate`). With ``white`` and
+    ``black`` (the camera's photos of a full-white and a full-black projection) also corrected for the
+    surface's colour and light, as ``--photometric``. Returns uint8 RGB on the projected grid."""
+    if not isinstance(registration, Registration):
+        raise ProjregError(
+            f"registration: expected a Registration (Registrar.register's answer), got {type(registration).__name__}"
+        )
+    if not (isinstance(fill, int | np.integer) and 0 <= fill <= 255):
+        raise ProjregError(f"fill: must be an integer in 0..255, got {fill!r}")
     image = check_image("content", content)
     camera = registration.camera_size
+    check_aspect(image.shape, tuple(camera), "content")
     if (white is None) != (black is None):
         raise ProjregError("photometric compensation needs both the white and the black photo")
     if white is not None:
@@ -135,7 +147,18 @@ def compensate(
         if white.shape[:2] != tuple(camera):
             raise ProjregError(f"white photo is {white.shape[:2]}, the registration's camera frame {tuple(camera)}")
         image = solve(resize_to(image, white.shape), model)[0]
-    return _prewarp(image, registration.flow, registration.claimed, fill, camera_size=tuple(camera))
+    reg = registration
+    return prewarp(
+        image,
+        reg.flow,
+        claimed=reg.claimed,
+        confidence=reg.confidence,
+        registered=reg.registered,
+        coverage=coverage,
+        min_confidence=min_confidence,
+        fill=fill,
+        camera_size=tuple(camera),
+    )
 
 
 def end_point_error(

@@ -470,8 +470,8 @@ def predict(
     for r in written:  # even with --quiet: a pair that could not be registered must not pass unnoticed
         if not r.registered:
             typer.echo(
-                f"projreg: warning: {r.sample_id}: cannot be registered ({r.reason}); {r.out} holds a zero "
-                "flow with no valid pixel",
+                f"projreg: warning: {r.sample_id}: cannot be registered ({r.reason}); {r.out} claims no pixel "
+                "(its flow is an unverified estimate; `projreg compensate` projects content as it is)",
                 err=True,
             )
     if not quiet:
@@ -492,8 +492,26 @@ def compensate(
     white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
     black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
     gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
+    coverage: Annotated[
+        str,
+        typer.Option(
+            help="Which projector pixels show content: complete (every one whose flow lands in the camera "
+            "frame) or claimed (only the flow's valid pixels).",
+            metavar="complete|claimed",
+        ),
+    ] = "complete",
+    min_confidence: Annotated[
+        float,
+        typer.Option(
+            help="complete: show content only where the flow's confidence is at least this (0..1).", metavar="C"
+        ),
+    ] = 0.0,
 ) -> None:
-    """Pre-warp content: the projector image that makes the camera see CONTENT undistorted."""
+    """Pre-warp content: the projector image that makes the camera see CONTENT undistorted.
+
+    By default every projector pixel whose flow lands in the camera frame shows content (a pair reported
+    as not registered: the content as it is); the flow's confidence and claim are information, not a mask
+    (--coverage claimed, --min-confidence)."""
     from .inference.compensate import compensate_files
 
     try:
@@ -504,13 +522,19 @@ def compensate(
             )
         if not photometric and (white is not None or black is not None):
             raise ProjregError("--white and --black calibrate the photometric correction; add --photometric")
-        result = compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
+        photos = (white, black) if photometric else None
+        result = compensate_files(content, flow, out, fill, photos, gamma, coverage, min_confidence)
     except ProjregError as e:
         raise fail("projreg", e) from None
     for line in result["warnings"]:
         typer.echo(f"projreg: warning: {line}", err=True)
     h, w = result["size"]
     how = "geometric + photometric" if photometric else "geometric"
+    if not result["registered"] and coverage == "complete":
+        how = "photometric only" if photometric else "uncompensated"
+        typer.echo(
+            f"projreg: warning: {flow}: its pair was not registered; the content is projected as it is", err=True
+        )
     typer.echo(
         f"{out}: {w}x{h} projector image ({how}), content on {result['lit']:.1%} of its pixels, "
         f"--fill {fill} elsewhere",

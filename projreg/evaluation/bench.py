@@ -201,9 +201,9 @@ def run_bench(
                 chunk = {done + j: first if done + j == 1 else _read(reader, kj) for j, kj in enumerate(ks)}
                 shares = _prefetch(methods, list(chunk.values()))
             s = chunk[done]
-            flows = _score_sample(methods, scores, s, k, shares, track)
+            preds = _score_sample(methods, scores, s, k, shares, track)
             if loop is not None:
-                comp = loop.score(k, s, flows)
+                comp = loop.score(k, s, preds)
                 uncompensated.comp.append(comp.pop(UNCOMPENSATED))
                 for m, sc in zip(methods, scores, strict=True):
                     sc.comp.append(comp[m.name])
@@ -262,23 +262,22 @@ def _warm_up(methods: list[Method], sample: dict) -> None:
 
 def _score_sample(
     methods: list[Method], scores: list[_Scores], s: dict, k: int, shares: dict[str, float], track: bool
-) -> dict[str, np.ndarray]:
-    """Every method's flow for sample ``s`` (index ``k``), timed and scored; the flows with the pixels a
-    method does not claim set to NaN (the compensation honours what a method claims)."""
+) -> dict[str, Prediction]:
+    """Every method's answer for sample ``s`` (index ``k``), timed and scored, by method name."""
     groups = sample_groups(s["params"])
     sid = str(s["params"].get("sample_id", k))
     if track and s["params"].get("frame", 0) == 0:  # a sequence starts: the trackers forget
         for m in methods:
             if m.tracker is not None:
                 m.tracker.reset()
-    flows = {}
+    preds = {}
     for m, sc in zip(methods, scores, strict=True):
         t0 = time.perf_counter()
         pred = as_prediction(register_any_size(m.predict, s["projected"], s["captured"]))
         sc.ms.append(1000 * (time.perf_counter() - t0) + shares.get(m.name, 0.0))
         sc.add(pred, s["flow"], s["valid"], groups, sid, str(s["params"].get("sequence", "")))
-        flows[m.name] = pred.flow if pred.claimed is None else np.where(pred.claimed[..., None], pred.flow, np.nan)
-    return flows
+        preds[m.name] = pred
+    return preds
 
 
 def _dataset_info(reader: ShardReader, data: Path, evaluated: int) -> dict:

@@ -2,7 +2,11 @@
 
 For a generated sample, the desired camera view is the sample's projected picture placed in the camera
 frame (:func:`projreg.inference.compensate.compensate`'s convention: the picture spans the camera frame). Each
-method's flow pre-warps it; the pre-warped projector image is photographed through the sample's own
+method's flow pre-warps it as the product does by default (:func:`projreg.inference.compensate.prewarp`:
+content on every projector pixel whose flow lands in the frame, a pair the method reports as not registered
+projected as it is; what the user gets), and, for a method that claims only part of the frame, once more
+with content on its claimed pixels only (``comp_psnr_claimed``, ``comp_ssim_claimed``: the claimed-only
+coverage, the rest dark); the pre-warped projector image is photographed through the sample's own
 scene, photometry and sensor noise (:class:`projsynth.dataset.rerender.Rerenderer`); so is the pre-warp by the
 ground-truth flow, and the content projected as it is (the ``uncompensated`` row).
 
@@ -37,8 +41,9 @@ from projsynth.dataset.rerender import Rerenderer, View
 from projsynth.errors import ProjsynthError
 
 from ..errors import ProjregError
-from ..inference.compensate import compensate
+from ..inference.compensate import compensate, lands_in_frame, prewarp
 from ..inference.radiometric import calibrate, solve, to_linear
+from ..prediction import Prediction, as_prediction
 
 UNCOMPENSATED = "uncompensated"
 REGION_ERODE_PX = 2
@@ -65,37 +70,47 @@ class ClosedLoop:
         except ProjsynthError as e:
             raise ProjregError(f"--compensation: sample {k}: {e}") from e
 
-    def score(self, k: int, sample: dict, flows: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    def score(self, k: int, sample: dict, answers: dict[str, Prediction | np.ndarray]) -> dict[str, dict[str, float]]:
         """``{method: {comp_psnr, comp_ssim, ...}}`` for sample ``k`` (its reader dict), plus ``uncompensated``.
 
         Args:
-            flows: each method's forward flow ``(H, W, 2)`` in captured pixels; non-finite where the
-                method claims no correspondence (the pre-warp leaves those projector pixels dark).
+            answers: each method's answer (flow ``(H, W, 2)`` in captured pixels, claim, registered; a bare
+                flow claims every pixel).
+                Each is compensated as ``projreg compensate`` does by default (complete coverage, a pair
+                not registered projected as it is); a method that claims only part of the frame is
+                also scored with the content on its claimed pixels only (``comp_*_claimed``).
         """
         content = sample["projected"]
         camera = sample["captured"].shape[:2]
+        preds = {name: as_prediction(a) for name, a in answers.items()}
 
-        def warp(image: np.ndarray, flow: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-            valid = np.isfinite(flow).all(axis=2) if valid is None else valid
-            if not (valid & np.isfinite(flow).all(axis=2)).any():  # claims nothing: the projector stays dark
-                return np.zeros_like(image, shape=(*flow.shape[:2], 3))
-            return compensate(image, flow, valid, camera_size=camera)
+        def warp(image: np.ndarray, pred: Prediction, coverage: str = "complete") -> np.ndarray:
+            claimed = pred.claimed if coverage == "claimed" else None
+            if coverage == "claimed" and not (lands_in_frame(pred.flow, claimed, camera)).any():
+                return np.zeros_like(image, shape=(*pred.flow.shape[:2], 3))  # claims nothing: the projector stays dark
+            return prewarp(
+                image, pred.flow, claimed=claimed, registered=pred.registered, coverage=coverage, camera_size=camera
+            )
 
-        images = [warp(content, sample["flow"], sample["valid"]), content, *(warp(content, f) for f in flows.values())]
+        partial = [n for n, p in preds.items() if p.claimed is not None and not p.claimed.all()]
+        images = [compensate(content, sample["flow"], sample["valid"], camera_size=camera), content]
+        images += [warp(content, p) for p in preds.values()] + [warp(content, preds[n], "claimed") for n in partial]
         views = self._views(k, images)
         region = compared_region(views[0], sample["valid"])
-        names = [UNCOMPENSATED, *flows]
-        out = {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=True)}
-        self.last_views = {"truth": views[0].image, **{n: v.image for n, v in zip(names, views[1:], strict=True)}}
+        names = [UNCOMPENSATED, *preds]
+        out = {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=False)}
+        for name, v in zip(partial, views[len(names) + 1 :], strict=True):
+            out[name].update({f"{key}_claimed": x for key, x in view_scores(v.image, views[0].image, region).items()})
+        self.last_views = {"truth": views[0].image, **{n: v.image for n, v in zip(names, views[1:], strict=False)}}
         if self.photometric:
             wanted = cv2.resize(content, camera[::-1], interpolation=cv2.INTER_AREA)
             white, black = self._views(k, [np.full_like(content, WHITE_LEVEL), np.zeros_like(content)])
             model = calibrate(white.image, black.image, self.gamma, WHITE_LEVEL / 255)
             needed, _ = solve(wanted, model, region)
-            photo = self._views(k, [warp(needed, f) for f in flows.values()])
-            corrected = {f"{n}+photometric": v.image for n, v in zip(flows, photo, strict=True)}
+            photo = self._views(k, [warp(needed, p) for p in preds.values()])
+            corrected = {f"{n}+photometric": v.image for n, v in zip(preds, photo, strict=True)}
             self.last_views.update({"desired": wanted, **corrected})
-            for name, geo, ph in zip(names, views[1:], [None, *photo], strict=True):
+            for name, geo, ph in zip(names, views[1:], [None, *photo], strict=False):
                 out[name].update(desired_scores(geo.image, wanted, region, self.gamma, "geo"))
                 none = dict.fromkeys(("photo_psnr", "photo_ssim", "photo_de2000"))
                 out[name].update(none if ph is None else desired_scores(ph.image, wanted, region, self.gamma, "photo"))
@@ -156,6 +171,8 @@ def desired_scores(view: np.ndarray, wanted: np.ndarray, region: np.ndarray, gam
 COMPENSATION_KEYS = (
     "comp_psnr",
     "comp_ssim",
+    "comp_psnr_claimed",
+    "comp_ssim_claimed",
     "geo_psnr",
     "photo_psnr",
     "geo_ssim",
@@ -168,8 +185,8 @@ COMPENSATION_KEYS = (
 def compensation_means(scores: list[dict[str, float | None]]) -> dict[str, float | None]:
     """Means over samples of every compensation score present (samples with an empty region skipped)."""
     out = {}
-    for key in (k for k in COMPENSATION_KEYS if k in scores[0]):
-        values = [s[key] for s in scores if s[key] is not None]
+    for key in (k for k in COMPENSATION_KEYS if any(k in s for s in scores)):
+        values = [s[key] for s in scores if s.get(key) is not None]
         out[key] = float(np.mean(values)) if values else None
     return out
 

@@ -2,9 +2,12 @@
 
 Each pair gives the forward flow, projected -> captured, written as the shards' flow EXR (channels
 ``forward.u``, ``forward.v``, ``valid``) and, optionally, a colour-wheel PNG. With the refinement,
-``valid`` is 1 where the refinement's confidence is at least ``CONFIDENT`` (0.5; docs/model.md) and
-the header says whether the pair registered at all (``registered``, ``claimed``, ``reason``); the
-network alone (``refine=False``) has no notion of invalid pixels and claims all of them.
+``valid`` is 1 where the refinement's confidence is at least ``CONFIDENT`` (0.5; docs/model.md) on a
+registered pair, the channel ``confidence`` holds that confidence (0..1) on every pixel, and the header
+says whether the pair registered at all (``registered``, ``claimed``, ``reason``). The flow is the best
+estimate on every pixel, claimed or not, and finite everywhere (``compensate`` uses all of it by
+default). The network alone (``refine=False``) measures no confidence (no channel) and claims every
+pixel.
 
 The captured image may have another size than the projected one (a camera is not a projector): it
 is resized for the network and the flow is given in its own pixels (:mod:`projreg.geometry.frames`).
@@ -204,7 +207,7 @@ def predict(
         chunk = jobs[start : start + batch_size]
         pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
         for job, reg in zip(chunk, register_pairs(net, refiner, pairs, max_side, batch_size, finer_side), strict=True):
-            pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason)
+            pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
             results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size))
             if progress:
                 progress(len(results), len(jobs))
@@ -277,7 +280,7 @@ def _write(
     if tracking:
         attrs["tracking"] = tracking
     try:
-        files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs))]
+        files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs, confidence=pred.confidence))]
         if job.viz is not None:
             files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
         write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither

@@ -26,7 +26,9 @@ class Registration:
 
     ``flow``: float32 ``(H, W, 2)`` (module conventions); ``claimed``: bool ``(H, W)``, the pixels the
     answer vouches for (``predict``'s EXR ``valid``); ``confidence``: float32 ``(H, W)`` in [0, 1],
-    claimed where >= ``CONFIDENT`` (None without the refinement, and for a tracked frame);
+    the refinement's per-pixel confidence (``predict``'s EXR ``confidence``), claimed where >=
+    ``CONFIDENT`` on a registered pair (None without the refinement: the network alone measures none);
+    the flow is the best estimate on every pixel, claimed or not, finite everywhere;
     ``registered``: False when the pair could not be registered at all, ``reason`` says why (its flow
     is then a placeholder and nothing is claimed); ``camera_size``: the captured image's ``(H, W)``;
     ``timings``: milliseconds per stage (``network``, ``refine``); ``step``: for tracking, how the frame
@@ -73,7 +75,7 @@ def register_pairs(
         pred, info = refiner.predict_info(a, b, flow, finer=finer_flow(net, a, b, finer_side))
         timings = {"network": network_ms, "refine": 1000 * (time.perf_counter() - t0)}
         flow = flow_to_captured(pred.flow, scale)
-        out.append(Registration(flow, pred.claimed, info.confidence, pred.registered, pred.reason, camera, timings))
+        out.append(Registration(flow, pred.claimed, pred.confidence, pred.registered, pred.reason, camera, timings))
     return out
 
 

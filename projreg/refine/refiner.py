@@ -143,12 +143,13 @@ class GeometricRefiner:
             return self._predict_shrunk(projected, captured, flow, identity, finer)
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
-            return Prediction(flow, none > 0, False, "too small"), RefineInfo("skipped", "", {}, none, 0.0)
+            return Prediction(flow, none > 0, False, "too small", none), RefineInfo("skipped", "", {}, none, 0.0)
         fitting = self._workers.submit(network_starts, self.config, flow)  # beside the context
         ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
         if ctx.share < self.config.images.textureless_below:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
-            return Prediction(np.zeros_like(flow), none > 0, False, why), RefineInfo("none", "", {}, none, ctx.share)
+            pred = Prediction(np.zeros_like(flow), none > 0, False, why, none)
+            return pred, RefineInfo("none", "", {}, none, ctx.share)
         search = self._search(ctx, projected, captured, fitting, identity, finer)
         return self._verdict(search)
 
@@ -269,7 +270,7 @@ class GeometricRefiner:
             scores[best.key] = ctx.score(best.key, best.flow)
         # a pair reported as not registered claims nothing: a few stray pixels passing the checks are not
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
-        pred = Prediction(best.flow, claimed if not why else np.zeros_like(claimed), not why, why)
+        pred = Prediction(best.flow, claimed if not why else np.zeros_like(claimed), not why, why, conf)
         return pred, RefineInfo(best.hypothesis, best.label, scores, conf, ctx.share, tuple(search.stages))
 
     def _registers(self, claimed: np.ndarray) -> bool:
@@ -370,7 +371,7 @@ class GeometricRefiner:
         h, w = projected.shape[:2]
         conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
         claimed = (conf >= CONFIDENT) if pred.registered else np.zeros((h, w), bool)
-        pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed)
+        pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed, confidence=conf)
         return pred, replace(info, confidence=conf)
 
     def _at_full_size(self, search: Search, projected: np.ndarray, captured: np.ndarray) -> Search:

@@ -7,6 +7,7 @@ grid, ``flow[y, x] = (u, v)``; ``valid`` is bool ``(H, W)``.
 import io
 import os
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from ..utils.files import write_atomic
 from ..utils.native import native_output_silenced
 
 EXR_CHANNELS = ("forward.u", "forward.v", "valid")
+CONFIDENCE_CHANNEL = "confidence"  # optional: a prediction's per-pixel confidence in [0, 1] (projreg predict)
 FLO_MAGIC = 202021.25  # the bytes b"PIEH" read as a little-endian float32
 FLO_UNKNOWN = 1e10  # Middlebury readers treat a component > 1e9 as unknown flow
 _COMPRESSIONS = {"zip": OpenEXR.ZIP_COMPRESSION, "pxr24": OpenEXR.PXR24_COMPRESSION}
@@ -37,7 +39,12 @@ def _as_valid(valid: np.ndarray, shape: tuple[int, ...], where: str) -> np.ndarr
 
 
 def encode_flow_exr(
-    flow: np.ndarray, valid: np.ndarray, sample_id: str, compression: str = "zip", attrs: dict[str, str] | None = None
+    flow: np.ndarray,
+    valid: np.ndarray,
+    sample_id: str,
+    compression: str = "zip",
+    attrs: dict[str, str] | None = None,
+    confidence: np.ndarray | None = None,
 ) -> bytes:
     """Encode one sample's flow as a complete single-part scanline OpenEXR file, in memory.
 
@@ -54,10 +61,12 @@ def encode_flow_exr(
             ``|flow| < 512``; ``valid`` stays exact).
         attrs: more string header attributes (e.g. ``projreg predict``'s ``registered``); they
             cannot replace the ones above.
+        confidence: optional float ``(H, W)`` in [0, 1], stored as the FLOAT channel ``confidence``
+            (``projreg predict``'s per-pixel confidence).
 
     Returns:
-        The EXR file: channels ``forward.u``, ``forward.v``, ``valid`` (FLOAT); string attributes
-        ``units="px"``, ``direction="projected->captured"``, ``sample_id``.
+        The EXR file: channels ``forward.u``, ``forward.v``, ``valid`` (FLOAT), and ``confidence`` when
+        given; string attributes ``units="px"``, ``direction="projected->captured"``, ``sample_id``.
 
     Convention: flow projected -> captured, in px, ``flow[y, x] = (u, v)``.
 
@@ -86,9 +95,25 @@ def encode_flow_exr(
         "forward.v": np.ascontiguousarray(flow[..., 1]),
         "valid": np.ascontiguousarray(valid, dtype=np.float32),  # astype() would keep an F-order layout
     }
+    if confidence is not None:
+        confidence = np.asarray(confidence)
+        if confidence.shape != valid.shape or not np.isfinite(confidence).all():
+            raise ProjsynthError(f"{where}: confidence must be a finite {valid.shape} array, got {confidence.shape}")
+        channels[CONFIDENCE_CHANNEL] = np.ascontiguousarray(np.clip(confidence, 0, 1), dtype=np.float32)
     buf = io.BytesIO()
     OpenEXR.File(header, channels).write(buf)
     return buf.getvalue()
+
+
+@dataclass(frozen=True)
+class FlowFile:
+    """A decoded flow EXR: ``flow`` float32 ``(H, W, 2)``, ``valid`` bool ``(H, W)``, the string
+    ``header`` attributes, and ``confidence`` float32 ``(H, W)`` when the file has that channel."""
+
+    flow: np.ndarray
+    valid: np.ndarray
+    header: dict[str, str]
+    confidence: np.ndarray | None = None
 
 
 def decode_flow_exr(data: bytes) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
@@ -106,6 +131,12 @@ def decode_flow_exr(data: bytes) -> tuple[np.ndarray, np.ndarray, dict[str, str]
 
     Convention: flow projected -> captured, in px, ``flow[y, x] = (u, v)``.
     """
+    f = decode_flow_file(data)
+    return f.flow, f.valid, f.header
+
+
+def decode_flow_file(data: bytes) -> FlowFile:
+    """:func:`decode_flow_exr` with the optional ``confidence`` channel (:class:`FlowFile`)."""
 
     def invalid(why: str) -> ProjsynthError:
         return ProjsynthError(f"not a valid OpenEXR flow file: {why}; regenerate or re-export it")
@@ -123,7 +154,12 @@ def decode_flow_exr(data: bytes) -> tuple[np.ndarray, np.ndarray, dict[str, str]
         raise invalid(f"channel shapes differ: {u.shape}, {v.shape}, {m.shape}")
     flow = np.stack([u, v], axis=-1).astype(np.float32, copy=False)  # [H, W, 2]
     attrs = {key: value for key, value in header.items() if isinstance(value, str)}
-    return flow, m > 0.5, attrs
+    confidence = None
+    if CONFIDENCE_CHANNEL in channels:
+        confidence = np.asarray(channels[CONFIDENCE_CHANNEL].pixels, np.float32)
+        if confidence.shape != m.shape:
+            raise invalid(f"channel {CONFIDENCE_CHANNEL} has shape {confidence.shape}, the flow {m.shape}")
+    return FlowFile(flow, m > 0.5, attrs, confidence)
 
 
 def _read_bytes(path: Path) -> bytes:
@@ -135,11 +171,17 @@ def _read_bytes(path: Path) -> bytes:
 
 def read_flow_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     """Read an EXR flow file from disk; returns ``(flow, valid, header)`` as :func:`decode_flow_exr`."""
+    f = read_flow_file(path)
+    return f.flow, f.valid, f.header
+
+
+def read_flow_file(path: str | os.PathLike[str]) -> FlowFile:
+    """Read an EXR flow file from disk, with its optional confidence (:class:`FlowFile`)."""
     path = Path(path)
     data = _read_bytes(path)  # its error already names the file
     try:
         with native_output_silenced():  # a damaged file: OpenEXR's own lines before ours
-            return decode_flow_exr(data)
+            return decode_flow_file(data)
     except ProjsynthError as e:
         raise ProjsynthError(f"{path}: {e}") from e
 
@@ -187,5 +229,3 @@ def read_flo(path: str | os.PathLike[str]) -> np.ndarray:
     if w <= 0 or h <= 0 or len(data) != 12 + 8 * w * h:
         raise ProjsynthError(f"{path}: .flo header says {w}x{h} but has {len(data)} bytes; re-export it")
     return np.frombuffer(data, "<f4", offset=12).reshape(h, w, 2).astype(np.float32)
-
-

@@ -1,5 +1,7 @@
 """The in-memory API gives what the command line writes, pair by pair, batch or not, any camera size."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -9,7 +11,7 @@ from projreg import ProjregError
 from projreg.api import Registrar, compensate
 from projreg.cli import app
 from projreg.inference.compensate import compensate as compensate_arrays
-from projsynth.flow.formats import read_flow_exr
+from projsynth.flow.formats import read_flow_exr, read_flow_file
 
 
 def _png(path, rgb):
@@ -28,6 +30,8 @@ def test_register_gives_predicts_flow_and_valid_for_any_camera_size(pairs, tiny_
         result = CliRunner().invoke(app, ["predict", *args, "--out", str(out), "--model", str(tiny_ckpt), "-q"])
         assert result.exit_code == 0, result.stderr
         flow, valid, header = read_flow_exr(out)
+        np.testing.assert_array_equal(read_flow_file(out).confidence, reg.confidence)  # the confidence beside the claim
+        assert np.isfinite(reg.flow).all()
         np.testing.assert_allclose(reg.flow, flow, atol=1e-4)
         np.testing.assert_array_equal(reg.claimed, valid)
         assert reg.camera_size == captured.shape[:2] and header["camera_size"] == "x".join(map(str, reg.camera_size))
@@ -37,13 +41,29 @@ def test_register_gives_predicts_flow_and_valid_for_any_camera_size(pairs, tiny_
         np.testing.assert_allclose(reg.flow, registrar.register(a, b).flow, atol=1e-4)
 
 
-def test_compensate_is_the_pre_warp_of_the_claimed_flow(pairs, tiny_ckpt):
+def test_compensate_is_the_pre_warp_of_the_whole_flow_or_of_the_claim(pairs, tiny_ckpt):
     img0, img1 = pairs[1]
     reg = Registrar(tiny_ckpt, device="cpu").register(img0, img1)
+    reg = replace(reg, registered=True)  # the tiny test network may not register; the coverage is the point here
     wanted = np.full_like(img1, 200)
     wanted[:, ::8] = 30
-    expected = compensate_arrays(wanted, reg.flow, reg.claimed, 7, camera_size=reg.camera_size)
-    np.testing.assert_array_equal(compensate(wanted, reg, fill=7), expected)
+    complete = compensate_arrays(wanted, reg.flow, None, 7, camera_size=reg.camera_size)
+    np.testing.assert_array_equal(compensate(wanted, reg, fill=7), complete)
+    claimed = compensate_arrays(
+        wanted,
+        replace(reg, flow=np.where(reg.claimed[..., None], reg.flow, 0)).flow,
+        reg.claimed,
+        7,
+        camera_size=reg.camera_size,
+    )
+    np.testing.assert_array_equal(compensate(wanted, reg, fill=7, coverage="claimed"), claimed)
+    confident = reg.confidence >= 0.3
+    np.testing.assert_array_equal(
+        compensate(wanted, reg, fill=7, min_confidence=0.3),
+        compensate_arrays(wanted, reg.flow, confident, 7, camera_size=reg.camera_size),
+    )
+    unregistered = compensate(wanted, replace(reg, registered=False))
+    np.testing.assert_array_equal(unregistered, cv2.resize(wanted, img0.shape[1::-1], interpolation=cv2.INTER_AREA))
     with pytest.raises(ProjregError, match="both the white and the black"):
         compensate(wanted, reg, white=img1)
 

@@ -1,11 +1,12 @@
 import cv2
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from projreg.cli import app
 from projreg.inference.compensate import compensate
 from projsynth.dataset.transforms import builtin_table
-from projsynth.flow.formats import write_flow_exr
+from projsynth.flow.formats import encode_flow_exr, write_flow_exr
 from projsynth.sim.photometric import PAPER_IDENTITY
 from projsynth.sim.render import render
 from projsynth.sim.rig import make_scene
@@ -69,3 +70,105 @@ def test_cli_writes_the_projector_image(tmp_path):
     jpg = compensate_cli(tmp_path / "c.png", tmp_path / "p.jpg")
     assert jpg.exit_code == 2 and "--out" in jpg.stderr and "ending in .png" in jpg.stderr
     assert not (tmp_path / "p.jpg").exists()
+
+
+def _flow_file(path, registered="yes", confidence=True):
+    """A flow EXR as `projreg predict` writes one: a shift of (3, 1) px, claimed on the left half, the
+    confidence falling from 1 to 0 across the frame."""
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[..., 0], flow[..., 1] = 3.0, 1.0
+    claimed = np.zeros((H, W), bool)
+    claimed[:, : W // 2] = registered == "yes"
+    conf = np.tile(np.linspace(1, 0, W, dtype=np.float32), (H, 1))
+    attrs = {"registered": registered, "camera_size": f"{H}x{W}"}
+    data = encode_flow_exr(flow, claimed, "x", attrs=attrs, confidence=conf if confidence else None)
+    path.write_bytes(data)
+    return flow, conf
+
+
+def _run(tmp_path, *args):
+    content = _texture(5)
+    cv2.imwrite(str(tmp_path / "c.png"), cv2.cvtColor(content, cv2.COLOR_RGB2BGR))
+    out = tmp_path / f"p{len(list(tmp_path.glob('p*.png')))}.png"
+    result = CliRunner().invoke(
+        app,
+        [
+            "compensate",
+            "--content",
+            str(tmp_path / "c.png"),
+            "--flow",
+            str(tmp_path / "f.exr"),
+            "--out",
+            str(out),
+            *args,
+        ],
+    )
+    image = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB) if out.exists() else None
+    return result, image, content
+
+
+def test_the_default_shows_content_on_every_pixel_that_lands_in_the_frame_claimed_or_not(tmp_path):
+    _flow_file(tmp_path / "f.exr")
+    result, out, content = _run(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    np.testing.assert_array_equal(out[: H - 1, : W - 3], content[1:, 3:])  # p shows the content at p + (3, 1)
+    assert (out[:, W - 3 :] == 0).all() and (out[H - 1] == 0).all()  # lands outside the frame: --fill
+    assert f"content on {(H - 1) * (W - 3) / (H * W):.1%} of its pixels" in result.stderr
+    claimed_only, out, _ = _run(tmp_path, "--coverage", "claimed")
+    assert claimed_only.exit_code == 0, claimed_only.stderr
+    assert (out[:, W // 2 :] == 0).all() and (out[: H - 1, : W // 2] == content[1:, 3 : W // 2 + 3]).all()
+    confident, out, _ = _run(tmp_path, "--min-confidence", "0.75")
+    assert confident.exit_code == 0, confident.stderr
+    shown = np.tile(np.linspace(1, 0, W) >= 0.75, (H, 1))
+    shown[H - 1] = False
+    assert ((out != 0).any(axis=2) <= shown).all() and (out[shown] == content[1:, 3:][shown[: H - 1, : W - 3]]).all()
+
+
+def test_a_pair_that_did_not_register_is_projected_as_it_is(tmp_path):
+    _flow_file(tmp_path / "f.exr", registered="no")
+    result, out, content = _run(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    np.testing.assert_array_equal(out, content)
+    assert "not registered; the content is projected as it is" in result.stderr and "(uncompensated)" in result.stderr
+    claimed, _, _ = _run(tmp_path, "--coverage", "claimed")  # claims nothing: nothing to show
+    assert claimed.exit_code == 2 and "nothing to compensate" in claimed.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--coverage", "verified"], "--coverage must be one of complete, claimed"),
+        (["--min-confidence", "1.5"], "--min-confidence must be in 0..1"),
+    ],
+)
+def test_bad_coverage_options_are_one_line_and_write_nothing(tmp_path, args, says):
+    _flow_file(tmp_path / "f.exr")
+    result, out, _ = _run(tmp_path, *args)
+    assert result.exit_code == 2 and says in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert out is None
+
+
+def test_a_confidence_threshold_needs_a_flow_that_carries_one(tmp_path):
+    _flow_file(tmp_path / "f.exr", confidence=False)  # an older predict, or another tool
+    result, out, _ = _run(tmp_path, "--min-confidence", "0.5")
+    assert result.exit_code == 2 and "carries no per-pixel confidence" in result.stderr and out is None
+    assert _run(tmp_path)[0].exit_code == 0  # the default needs none
+
+
+def test_content_of_another_aspect_is_refused(tmp_path):
+    _flow_file(tmp_path / "f.exr")
+    wide = np.zeros((H, 2 * W, 3), np.uint8)
+    cv2.imwrite(str(tmp_path / "wide.png"), wide)
+    result = CliRunner().invoke(
+        app,
+        [
+            "compensate",
+            "--content",
+            str(tmp_path / "wide.png"),
+            "--flow",
+            str(tmp_path / "f.exr"),
+            "--out",
+            str(tmp_path / "o.png"),
+        ],
+    )
+    assert result.exit_code == 2 and "would be stretched" in result.stderr and not (tmp_path / "o.png").exists()

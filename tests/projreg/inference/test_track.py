@@ -53,6 +53,7 @@ def test_tracking_from_a_known_previous_flow_finds_the_next_truth_without_regist
         assert np.linalg.norm(truth - frames[0][1], axis=-1).mean() > 2.0  # the rig did move
         assert epe.mean() < 0.15 and np.percentile(epe, 95) < 0.4, (epe.mean(), np.percentile(epe, 95))
         assert pred.registered and pred.claimed.mean() > 0.8
+        np.testing.assert_array_equal(pred.claimed, pred.confidence >= 0.5)  # a tracked frame's confidence comes along
 
 
 def test_a_tracked_bent_sheet_keeps_its_bend_from_the_last_answer():

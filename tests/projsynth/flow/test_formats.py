@@ -11,7 +11,16 @@ from hypothesis.extra.numpy import arrays
 
 from projsynth import ProjsynthError
 from projsynth.flow import formats as flowio
-from projsynth.flow.formats import decode_flow_exr, encode_flow_exr, read_flo, read_flow_exr, write_flo, write_flow_exr
+from projsynth.flow.formats import (
+    decode_flow_exr,
+    decode_flow_file,
+    encode_flow_exr,
+    read_flo,
+    read_flow_exr,
+    read_flow_file,
+    write_flo,
+    write_flow_exr,
+)
 from projsynth.flow.pictures import COLOR_WHEEL, flow_to_color
 
 SPECIALS = np.array(
@@ -323,3 +332,16 @@ def test_extra_header_attributes_round_trip_and_cannot_replace_the_format_ones()
     data = encode_flow_exr(flow, np.ones((2, 3), bool), "s0", attrs={"registered": "no", "sample_id": "evil"})
     _, _, header = decode_flow_exr(data)
     assert header["registered"] == "no" and header["sample_id"] == "s0" and header["units"] == "px"
+
+
+def test_exr_confidence_channel_round_trips_and_is_optional(tmp_path):
+    flow = np.random.default_rng(3).normal(0, 5, (6, 7, 2)).astype(np.float32)
+    valid = np.ones((6, 7), bool)
+    confidence = np.linspace(-0.5, 1.5, 42, dtype=np.float32).reshape(6, 7)  # stored clipped to [0, 1]
+    (tmp_path / "c.exr").write_bytes(encode_flow_exr(flow, valid, "s", confidence=confidence))
+    f = read_flow_file(tmp_path / "c.exr")
+    np.testing.assert_array_equal(f.flow, flow)
+    np.testing.assert_array_equal(f.confidence, np.clip(confidence, 0, 1))
+    assert decode_flow_file(encode_flow_exr(flow, valid, "s")).confidence is None  # older files: no channel
+    with pytest.raises(ProjsynthError, match="confidence must be a finite"):
+        encode_flow_exr(flow, valid, "s", confidence=np.full((6, 7), np.nan))
