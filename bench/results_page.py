@@ -191,6 +191,17 @@ def compensation(report: dict) -> str:
     return table(["method", "EPE", *(label for label, _ in cols)], rows)
 
 
+def reliability(report: dict) -> str:
+    """Per refined method and confidence band: the share of the registered pairs' valid pixels in the
+    band and the shares of those within 1 px and 3 px (projreg/evaluation/reliability.py)."""
+    rows = [
+        [f"`{r['name']}`", b["band"], pct(b["share"]), pct(b["within1"]), pct(b["within3"])]
+        for r in report["results"]
+        for b in r.get("reliability", [])
+    ]
+    return table(["method", "confidence", "pixels %", "within 1 px %", "within 3 px %"], rows)
+
+
 def tracking(report: dict) -> str:
     def frames(r: dict) -> str:
         t = r.get("tracking")
@@ -206,6 +217,8 @@ def bench_run(report: dict) -> list[str]:
         out += ["Against the best baseline of each pair:", "", versus(report), ""]
     if any("comp_psnr" in r for r in report["results"]):
         out += ["What the camera sees of each method's compensation:", "", compensation(report), ""]
+    if any("reliability" in r for r in report["results"]):
+        out += ["What a confidence level means (registered pairs' valid pixels):", "", reliability(report), ""]
     if any("jitter" in r for r in report["results"]):
         out += ["Over time:", "", tracking(report), ""]
     return out

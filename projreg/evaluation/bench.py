@@ -55,6 +55,7 @@ from ..refine.config import DEFAULT_QUALITY
 from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_row
 from .methods import DEFAULT_BASELINES, REFINE_MODES, Method, ModelRun, resolve_methods
 from .metrics import KEYS, EPEAccumulator, sample_indices
+from .reliability import ReliabilityAccumulator
 from .report import versus_baselines
 
 GROUPS = ("role", "family", "condition", "pair_role")
@@ -77,6 +78,7 @@ class _Scores:
     def __init__(self, track: bool = False) -> None:
         self.jitter = JitterAccumulator() if track else None
         self.all = EPEAccumulator()
+        self.reliability = ReliabilityAccumulator()  # fed by the methods that measure a confidence
         self.groups: dict[str, dict[str, EPEAccumulator]] = {g: {} for g in GROUPS}
         self.ms: list[float] = []
         self.comp: list[dict[str, float | None]] = []  # per sample, with --compensation
@@ -89,6 +91,8 @@ class _Scores:
             self.jitter.add(sequence, pred.flow, gt, valid)
         one = EPEAccumulator()
         one.add(pred.flow, gt, valid, pred.claimed, sid)
+        if pred.confidence is not None and pred.registered:
+            self.reliability.add(pred.flow, gt, valid, pred.confidence)
         self.all.merge(one)
         for g, key in groups.items():
             self.groups[g].setdefault(key, EPEAccumulator()).merge(one)
@@ -113,6 +117,8 @@ class _Scores:
             out["tracking"] = dict(method.tracker.counts)
         if self.comp:
             out.update(compensation_means(self.comp))
+        if self.reliability.pixels.any():
+            out["reliability"] = self.reliability.result()
         out["unregistered"] = [p["id"] for p in self.pairs if not p["registered"]]
         out["groups"] = {g: {k: acc.result() for k, acc in accs.items()} for g, accs in self.groups.items()}
         out["pairs"] = self.pairs
