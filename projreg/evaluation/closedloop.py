@@ -4,11 +4,11 @@ For a generated sample, the desired camera view is the sample's projected pictur
 frame (:func:`projreg.inference.compensate.compensate`'s convention: the picture spans the camera frame). Each
 method's flow pre-warps it as the product does by default (:func:`projreg.inference.compensate.prewarp`:
 content on every projector pixel whose flow lands in the frame, a pair the method reports as not registered
-projected as it is; what the user gets), and, for a method that claims only part of the frame, once more
-with content on its claimed pixels only (``comp_psnr_claimed``, ``comp_ssim_claimed``: the claimed-only
-coverage, the rest dark); the pre-warped projector image is photographed through the sample's own
-scene, photometry and sensor noise (:class:`projsynth.dataset.rerender.Rerenderer`); so is the pre-warp by the
-ground-truth flow, and the content projected as it is (the ``uncompensated`` row).
+projected as it is; what the user gets), and once more with content on its claimed pixels only
+(``comp_psnr_claimed``, ``comp_ssim_claimed``: the claimed-only coverage, the rest dark; the same as the
+default for a method that claims the whole frame); the pre-warped projector image is photographed
+through the sample's own scene, photometry and sensor noise (:class:`projsynth.dataset.rerender.Rerenderer`);
+so is the pre-warp by the ground-truth flow, and the content projected as it is (the ``uncompensated`` row).
 
 ``comp_psnr`` / ``comp_ssim`` compare a method's camera view with the ground-truth compensation's
 view over the **compared region**: camera pixels lit by the projector whose projector pixel is valid
@@ -92,13 +92,17 @@ class ClosedLoop:
                 image, pred.flow, claimed=claimed, registered=pred.registered, coverage=coverage, camera_size=camera
             )
 
-        partial = [n for n, p in preds.items() if p.claimed is not None and not p.claimed.all()]
+        # the claimed-only variant differs from the default where a method claims part of the frame or
+        # reports the pair as not registered (then it claims nothing): those are photographed again
+        partial = [n for n, p in preds.items() if p.claimed is not None and not (p.claimed.all() and p.registered)]
         images = [compensate(content, sample["flow"], sample["valid"], camera_size=camera), content]
         images += [warp(content, p) for p in preds.values()] + [warp(content, preds[n], "claimed") for n in partial]
         views = self._views(k, images)
         region = compared_region(views[0], sample["valid"])
         names = [UNCOMPENSATED, *preds]
         out = {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=False)}
+        for name in preds:  # a method that claims the whole frame: its claimed-only view is its default one
+            out[name].update({f"{key}_claimed": x for key, x in out[name].items()})
         for name, v in zip(partial, views[len(names) + 1 :], strict=True):
             out[name].update({f"{key}_claimed": x for key, x in view_scores(v.image, views[0].image, region).items()})
         self.last_views = {"truth": views[0].image, **{n: v.image for n, v in zip(names, views[1:], strict=False)}}

@@ -34,6 +34,7 @@ from .outputs import guard_outputs, require_suffix, write_png
 from .radiometric import CLIPPED_SHARE, calibrate, solve
 
 COVERAGES = ("complete", "claimed")  # which projector pixels show content (module docstring)
+PREDICTED = "valid_threshold"  # the header attribute of `projreg predict`'s EXR (its flow is finite everywhere)
 ASPECT_TOLERANCE = 0.02  # content whose aspect ratio differs from the camera frame's by more is refused
 
 
@@ -216,7 +217,10 @@ def compensate_files(
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
     registered = f.header.get("registered", "yes") != "no"  # ground truth and other tools' flows say nothing
-    shown = shown_pixels(f.flow, f.valid, f.confidence, coverage, min_confidence)
+    shown = shown_pixels(f.flow, f.valid, f.confidence, coverage, min_confidence)  # the options checked
+    if PREDICTED not in f.header:  # not predict's (ground truth, another tool): its flow is defined where valid says
+        coverage = "claimed"
+        shown = shown_pixels(f.flow, f.valid, f.confidence, coverage, min_confidence)
     stated, warnings = _camera_size(f.header, flow), []
     # without a stated frame, the photos' (they are the camera's), else the flow's own grid
     camera = stated or (photos[0].shape[:2] if photos is not None else f.valid.shape)

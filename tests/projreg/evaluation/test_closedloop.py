@@ -8,6 +8,7 @@ from projreg.evaluation.bench import run_bench
 from projreg.evaluation.closedloop import UNCOMPENSATED, ClosedLoop
 from projreg.evaluation.methods import Method
 from projreg.evaluation.report import to_markdown
+from projreg.prediction import Prediction
 from projsynth.dataset.rerender import Rerenderer
 from projsynth.dataset.shards import ShardReader
 
@@ -79,3 +80,20 @@ def test_bench_writes_a_labelled_contact_sheet(tiny_train, tmp_path):
     assert picture.shape[1] == 5 * 96 and picture.shape[0] == 22 + 2 * 64  # header + two samples
     bad = CliRunner().invoke(app, ["bench", "--data", str(tiny_train), "--sheet", str(sheet)])
     assert bad.exit_code == 2 and "--compensation" in bad.stderr
+
+
+def test_the_default_compensation_ignores_the_claim_and_the_claimed_only_one_is_scored_beside_it(tiny_physical):
+    reader, loop = ShardReader(tiny_physical), ClosedLoop(tiny_physical)
+    s = reader.read(0)
+    half = np.zeros(s["valid"].shape, bool)
+    half[:, : half.shape[1] // 2] = True
+    answers = {
+        "whole": Prediction(s["flow"], np.ones_like(half)),
+        "half": Prediction(s["flow"], half),  # the same flow, half of it claimed
+        "unregistered": Prediction(s["flow"] + np.float32(9), np.zeros_like(half), registered=False),
+    }
+    scores = loop.score(0, s, answers)
+    assert scores["half"]["comp_psnr"] == scores["whole"]["comp_psnr"] == 99.0  # the claim does not mask
+    assert scores["whole"]["comp_psnr_claimed"] == 99.0 and scores["half"]["comp_psnr_claimed"] < 40
+    # a pair reported as not registered is projected as it is, whatever its flow
+    assert scores["unregistered"]["comp_psnr"] == scores[UNCOMPENSATED]["comp_psnr"]

@@ -80,7 +80,7 @@ def _flow_file(path, registered="yes", confidence=True):
     claimed = np.zeros((H, W), bool)
     claimed[:, : W // 2] = registered == "yes"
     conf = np.tile(np.linspace(1, 0, W, dtype=np.float32), (H, 1))
-    attrs = {"registered": registered, "camera_size": f"{H}x{W}"}
+    attrs = {"registered": registered, "camera_size": f"{H}x{W}", "valid_threshold": "confidence >= 0.5"}
     data = encode_flow_exr(flow, claimed, "x", attrs=attrs, confidence=conf if confidence else None)
     path.write_bytes(data)
     return flow, conf
@@ -172,3 +172,16 @@ def test_content_of_another_aspect_is_refused(tmp_path):
         ],
     )
     assert result.exit_code == 2 and "would be stretched" in result.stderr and not (tmp_path / "o.png").exists()
+
+
+def test_a_ground_truth_flow_is_used_where_its_valid_says(tmp_path):
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[..., 0] = 2.0
+    valid = np.ones((H, W), bool)
+    valid[20:40, 30:60] = False  # projsynth stores 0 there: not a flow to show content by
+    flow[~valid] = 0
+    write_flow_exr(tmp_path / "f.exr", flow, valid, "gt")
+    result, out, content = _run(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    assert (out[20:40, 30:60] == 0).all()
+    np.testing.assert_array_equal(out[:20, : W - 2], content[:20, 2:])
