@@ -173,6 +173,7 @@ def versus(report: dict) -> str:
 
 
 COMPENSATION = (
+    ("content on surface % (min)", "comp_shown"),
     ("comp PSNR dB", "comp_psnr"),
     ("comp SSIM", "comp_ssim"),
     ("claimed only: comp PSNR", "comp_psnr_claimed"),
@@ -187,7 +188,13 @@ COMPENSATION = (
 
 def compensation(report: dict) -> str:
     cols = [(label, key) for label, key in COMPENSATION if any(key in r for r in report["results"])]
-    rows = [[f"`{r['name']}`", num(r["epe"]), *(num(r.get(key)) for _, key in cols)] for r in report["results"]]
+
+    def cell(r: dict, key: str) -> str:
+        if key == "comp_shown":
+            return "–" if r.get(key) is None else f"{pct(r[key])} ({pct(r['comp_shown_min'])})"
+        return num(r.get(key))
+
+    rows = [[f"`{r['name']}`", num(r["epe"]), *(cell(r, key) for _, key in cols)] for r in report["results"]]
     return table(["method", "EPE", *(label for label, _ in cols)], rows)
 
 

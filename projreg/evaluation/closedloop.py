@@ -10,7 +10,9 @@ default for a method that claims the whole frame); the pre-warped projector imag
 through the sample's own scene, photometry and sensor noise (:class:`projsynth.dataset.rerender.Rerenderer`);
 so is the pre-warp by the ground-truth flow, and the content projected as it is (the ``uncompensated`` row).
 
-``comp_psnr`` / ``comp_ssim`` compare a method's camera view with the ground-truth compensation's
+``comp_shown`` is the share of the projector pixels that light the surface inside the frame (the truth's
+``valid``) to which a method's default compensation gives content (``comp_shown_min``: the smallest
+over the samples). ``comp_psnr`` / ``comp_ssim`` compare a method's camera view with the ground-truth compensation's
 view over the **compared region**: camera pixels lit by the projector whose projector pixel is valid
 in the ground truth (the surface the true compensation covers), eroded by 2 px so that the
 silhouette's antialiasing does not count. Both views carry the same noise, so the difference is the
@@ -101,8 +103,9 @@ class ClosedLoop:
         region = compared_region(views[0], sample["valid"])
         names = [UNCOMPENSATED, *preds]
         out = {name: view_scores(v.image, views[0].image, region) for name, v in zip(names, views[1:], strict=False)}
-        for name in preds:  # a method that claims the whole frame: its claimed-only view is its default one
+        for name, p in preds.items():  # a method that claims the whole frame: its claimed-only view is its default one
             out[name].update({f"{key}_claimed": x for key, x in out[name].items()})
+            out[name]["comp_shown"] = surface_shown(p, sample["valid"], camera)
         for name, v in zip(partial, views[len(names) + 1 :], strict=True):
             out[name].update({f"{key}_claimed": x for key, x in view_scores(v.image, views[0].image, region).items()})
         self.last_views = {"truth": views[0].image, **{n: v.image for n, v in zip(names, views[1:], strict=False)}}
@@ -119,6 +122,17 @@ class ClosedLoop:
                 none = dict.fromkeys(("photo_psnr", "photo_ssim", "photo_de2000"))
                 out[name].update(none if ph is None else desired_scores(ph.image, wanted, region, self.gamma, "photo"))
         return out
+
+
+def surface_shown(pred: Prediction, valid: np.ndarray, camera: tuple[int, int]) -> float | None:
+    """The share of the projector pixels that light the surface in the frame (the truth's ``valid``) to
+    which the default compensation gives content: all for a pair not registered (projected as it is),
+    else those whose flow lands in the camera frame."""
+    if not valid.any():
+        return None
+    if not pred.registered:
+        return 1.0
+    return float(lands_in_frame(pred.flow, valid, camera).sum() / valid.sum())
 
 
 def compared_region(truth_view: View, valid: np.ndarray) -> np.ndarray:
@@ -173,6 +187,7 @@ def desired_scores(view: np.ndarray, wanted: np.ndarray, region: np.ndarray, gam
 
 
 COMPENSATION_KEYS = (
+    "comp_shown",
     "comp_psnr",
     "comp_ssim",
     "comp_psnr_claimed",
@@ -192,6 +207,8 @@ def compensation_means(scores: list[dict[str, float | None]]) -> dict[str, float
     for key in (k for k in COMPENSATION_KEYS if any(k in s for s in scores)):
         values = [s[key] for s in scores if s.get(key) is not None]
         out[key] = float(np.mean(values)) if values else None
+        if key == "comp_shown":  # the worst pair beside the mean: a picture with holes is seen pair by pair
+            out["comp_shown_min"] = float(np.min(values)) if values else None
     return out
 
 

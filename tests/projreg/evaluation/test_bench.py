@@ -83,7 +83,8 @@ def test_report_schema(report, tiny_train):
         ("shifted", "baseline"),
     ]
     for r in report["results"]:
-        assert set(r) == {"name", "kind", "refined", *KEYS, "ms_per_pair", "groups", "pairs", "unregistered"}
+        extra = {"reliability"} if r["refined"] and any(p["registered"] for p in r["pairs"]) else set()
+        assert set(r) == {"name", "kind", "refined", *KEYS, "ms_per_pair", "groups", "pairs", "unregistered", *extra}
         assert [p["id"] for p in r["pairs"]] == [s["params"]["sample_id"] for s in _samples(tiny_train)]
         assert r["ms_per_pair"] > 0
         assert tuple(r["groups"]) == GROUPS
@@ -329,7 +330,7 @@ def test_track_rows_carry_every_metric_the_jitter_and_how_frames_were_registered
     rows = _by_name(report)
     assert list(rows) == ["last", "last+track", "dis-fast", "sift-ransac", "dis-fast+track"]  # no sift tracking
     for name in ("last+track", "dis-fast+track"):
-        assert set(rows["last"]) - {"jitter"} <= set(rows[name]) and rows[name]["ms_mean"] > 0
+        assert set(rows["last"]) - {"jitter", "reliability"} <= set(rows[name]) and rows[name]["ms_mean"] > 0
         assert sum(rows[name]["tracking"].values()) == 12 and rows[name]["tracking"]["full"] == 4
         assert rows[name]["kind"] == rows[name.split("+")[0]]["kind"]
     assert all(r["jitter"] is not None and r["jitter"] >= 0 for r in rows.values())

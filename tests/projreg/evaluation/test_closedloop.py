@@ -97,3 +97,5 @@ def test_the_default_compensation_ignores_the_claim_and_the_claimed_only_one_is_
     assert scores["whole"]["comp_psnr_claimed"] == 99.0 and scores["half"]["comp_psnr_claimed"] < 40
     # a pair reported as not registered is projected as it is, whatever its flow
     assert scores["unregistered"]["comp_psnr"] == scores[UNCOMPENSATED]["comp_psnr"]
+    assert scores["half"]["comp_shown"] == scores["whole"]["comp_shown"] == 1.0  # the truth lands in the frame
+    assert scores["unregistered"]["comp_shown"] == 1.0
