@@ -168,8 +168,13 @@ def end_point_error(
     ``epe`` (mean end-point error, px), the buckets ``s0-10``, ``s10-40``, ``s40+`` by the truth's
     magnitude, ``px1``/``px3``/``px5`` (shares of pixels off by more than that), ``pixels``; with
     ``claimed``, also ``epe_claimed`` and ``claimed`` (the claimed share of the valid pixels)."""
+    flow, truth, valid = np.asarray(flow, np.float32), np.asarray(truth, np.float32), np.asarray(valid)
+    for name, f in (("flow", flow), ("truth", truth)):
+        if f.shape[:2] == valid.shape and f.ndim == 3 and not np.isfinite(f[valid.astype(bool)]).all():
+            bad = int((~np.isfinite(f[valid.astype(bool)]).all(axis=-1)).sum())
+            raise ProjregError(f"{name}: {bad} valid pixel(s) hold NaN or Inf; a flow is scored where it is finite")
     acc = EPEAccumulator()
-    acc.add(np.asarray(flow, np.float32), np.asarray(truth, np.float32), np.asarray(valid, bool), claimed)
+    acc.add(flow, truth, valid, claimed)
     return acc.result()
 
 

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from projreg import ProjregError
-from projreg.api import Registrar, compensate
+from projreg.api import Registrar, compensate, end_point_error
 from projreg.cli import app
 from projreg.inference.compensate import compensate as compensate_arrays
 from projsynth.flow.formats import read_flow_exr, read_flow_file
@@ -78,3 +78,14 @@ def test_the_network_alone_claims_everything_and_bad_input_is_one_line(pairs, ti
         Registrar(tiny_ckpt, device="cpu", quality="slow")
     with pytest.raises(ProjregError, match="tracking follows each frame with the refinement"):
         next(Registrar(tiny_ckpt, device="cpu", refine=False).track([(img0, img1)]))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_end_point_error_refuses_a_flow_that_is_not_finite_where_it_is_scored(bad):
+    truth, valid = np.zeros((4, 5, 2), np.float32), np.ones((4, 5), bool)
+    flow = truth.copy()
+    flow[1, 2] = bad
+    with pytest.raises(ProjregError, match=r"^flow: 1 valid pixel\(s\) hold NaN or Inf"):
+        end_point_error(flow, truth, valid)
+    valid[1, 2] = False  # where it is not scored, anything goes
+    assert end_point_error(flow, truth, valid)["epe"] == 0.0
