@@ -89,3 +89,26 @@ def test_end_point_error_refuses_a_flow_that_is_not_finite_where_it_is_scored(ba
         end_point_error(flow, truth, valid)
     valid[1, 2] = False  # where it is not scored, anything goes
     assert end_point_error(flow, truth, valid)["epe"] == 0.0
+
+
+def test_predict_then_compensate_on_the_command_line_is_the_api_s_compensation(pairs, tiny_ckpt, tmp_path):
+    img0, img1 = pairs[0]
+    reg = Registrar(tiny_ckpt, device="cpu").register(img0, img1)
+    wanted = cv2.GaussianBlur(np.random.default_rng(2).integers(0, 255, img1.shape, np.uint8), (0, 0), 2)
+    args = ["--projected", _png(tmp_path / "p.png", img0), "--captured", _png(tmp_path / "c.png", img1)]
+    assert (
+        CliRunner()
+        .invoke(app, ["predict", *args, "--out", str(tmp_path / "f.exr"), "--model", str(tiny_ckpt), "-q"])
+        .exit_code
+        == 0
+    )
+    for extra, kwargs in (([], {}), (["--coverage", "claimed"], {"coverage": "claimed"})):
+        out = tmp_path / f"out{len(extra)}.png"
+        cmd = ["compensate", "--content", _png(tmp_path / "w.png", wanted), "--flow", str(tmp_path / "f.exr")]
+        result = CliRunner().invoke(app, [*cmd, "--out", str(out), *extra])
+        if kwargs and not reg.claimed.any():
+            assert result.exit_code == 2  # nothing claimed: nothing to show
+            continue
+        assert result.exit_code == 0, result.stderr
+        written = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+        np.testing.assert_array_equal(written, compensate(wanted, reg, **kwargs))
