@@ -432,6 +432,20 @@ def predict(
             "--track", help="Folders of frames of one sequence, in name order: each frame from the previous one's flow."
         ),
     ] = False,
+    white: Annotated[
+        Path | None,
+        typer.Option(
+            help="Camera photo of a full-white projection: the surface is divided out of every captured image "
+            "(one photo for all pairs: a fixed rig).",
+            metavar="IMG",
+        ),
+    ] = None,
+    black: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --white: camera photo of a full-black projection (removes the ambient light).", metavar="IMG"
+        ),
+    ] = None,
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
     backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="auto|torch|onnxruntime")] = "auto",
@@ -464,6 +478,8 @@ def predict(
                 progress=bar.done,
                 max_flow=max_flow,
                 track=track,
+                white=white,
+                black=black,
             )
     except ProjregError as e:
         raise fail("projreg", e) from None
