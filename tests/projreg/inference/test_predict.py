@@ -221,3 +221,37 @@ def test_the_rigs_photos_divide_the_surface_out_of_every_captured_image(pairs, t
         _cli(*folders, "--out", tmp_path / "o", "--viz", tmp_path / "V", "--white", picture), "--viz", "--white"
     )
     assert not (tmp_path / "o").exists() and not (tmp_path / "f.exr").exists()
+
+
+def test_track_mode_divides_every_frame_by_the_same_photos(tiny_sequences, tiny_ckpt, tmp_path):
+    reader = ShardReader(tiny_sequences)
+    try:
+        frames = [reader.read(k) for k in range(2)]
+    finally:
+        reader.close()
+    for s in frames:
+        _write(tmp_path / "P" / f"{s['params']['frame']:02d}.png", s["projected"])
+        _write(tmp_path / "C" / f"{s['params']['frame']:02d}.png", s["captured"])
+    lift = frames[0]["captured"].astype(np.int16)
+    white, black = np.clip(lift + 60, 0, 255).astype(np.uint8), (lift // 3).astype(np.uint8)
+    photos = ("--white", _write(tmp_path / "w.png", white), "--black", _write(tmp_path / "b.png", black))
+    out = tmp_path / "out"
+    result = _cli(
+        "--projected",
+        tmp_path / "P",
+        "--captured",
+        tmp_path / "C",
+        "--out",
+        out,
+        "--model",
+        tiny_ckpt,
+        "--track",
+        *photos,
+    )
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    headers = [read_flow_exr(out / f"{i:02d}_flow.exr")[2] for i in range(2)]
+    assert [h["photos"] for h in headers] == ["white and black"] * 2 and headers[0]["tracking"] == "full"
+    first = Registrar(tiny_ckpt, device="cpu").register(
+        frames[0]["projected"], frames[0]["captured"], white=white, black=black
+    )
+    np.testing.assert_allclose(read_flow_exr(out / "00_flow.exr")[0], first.flow, atol=1e-4)
