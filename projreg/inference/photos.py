@@ -30,7 +30,7 @@ from .radiometric import SWAPPED_SHARE, to_linear
 GAMMA = 2.2
 # grey levels (8-bit values) by which the white photo must exceed the black one for the projector to count as
 # reaching a pixel: about 3 sigma of the difference of two photos with one grey level of read noise. Measured
-# on a physical split (docs/design.md): 1-4 alike, 8 and 16 lose claimed pixels on dark surfaces
+# on a physical split (docs/design.md): 1-4 alike, 8 and more lose claimed pixels
 MARGIN = 4
 
 
