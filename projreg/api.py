@@ -24,8 +24,9 @@ from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import flow_to_captured, frame_scale, resize_to
 from .inference.compensate import check_aspect, prewarp
+from .inference.photos import normalise_capture
 from .inference.radiometric import calibrate, solve
-from .inference.register import Registration, check_image, register_pairs
+from .inference.register import Registration, check_image, register_pairs, rig_photos
 from .inference.runtime import DEFAULT_BACKEND, open_network
 from .inference.track import Tracker
 from .prediction import CONFIDENT, Prediction
@@ -72,21 +73,48 @@ class Registrar:
         self.network = open_network(model, backend=backend, device=device, precision=precision)
         self.refiner = GeometricRefiner(setting.refine) if refine else None
 
-    def register(self, projected: np.ndarray, captured: np.ndarray) -> Registration:
-        """The registration of one pair (module conventions)."""
-        return self.register_batch([(projected, captured)])[0]
+    def register(
+        self,
+        projected: np.ndarray,
+        captured: np.ndarray,
+        *,
+        white: np.ndarray | None = None,
+        black: np.ndarray | None = None,
+    ) -> Registration:
+        """The registration of one pair (module conventions). ``white`` and ``black``: the camera's photos
+        of a full-white and a full-black projection, of the captured image's size; the captured image
+        is then registered with the surface divided out (:mod:`projreg.inference.photos`; ``white``
+        alone: its colour, not the ambient light)."""
+        return self.register_batch([(projected, captured)], white=white, black=black)[0]
 
-    def register_batch(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]], batch_size: int = 1) -> list[Registration]:
+    def register_batch(
+        self,
+        pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+        batch_size: int = 1,
+        *,
+        white: np.ndarray | None = None,
+        black: np.ndarray | None = None,
+    ) -> list[Registration]:
         """The registrations of several pairs, in order; the network runs on ``batch_size`` pairs of one
-        size per call."""
-        return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size, self.finer_side)
+        size per call. ``white``, ``black``: as :meth:`register`, one pair of photos for every pair (a
+        fixed rig)."""
+        photos = rig_photos(white, black)
+        return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size, self.finer_side, photos)
 
-    def track(self, frames: Iterable[tuple[np.ndarray, np.ndarray]]) -> Iterator[Registration]:
+    def track(
+        self,
+        frames: Iterable[tuple[np.ndarray, np.ndarray]],
+        *,
+        white: np.ndarray | None = None,
+        black: np.ndarray | None = None,
+    ) -> Iterator[Registration]:
         """The registrations of a sequence's frames, in order: each frame refined from the previous one's
         flow, the network only for the first frame and where the track is lost (:mod:`projreg.inference.track`).
-        Every frame of one sequence must have the sizes of the first."""
+        Every frame of one sequence must have the sizes of the first. ``white``, ``black``: as
+        :meth:`register`, the same photos for every frame."""
         if self.refiner is None:
             raise ProjregError("tracking follows each frame with the refinement; use refine=True")
+        photos = rig_photos(white, black)
         timings: dict[str, float] = {}
 
         def full(a: np.ndarray, b: np.ndarray) -> Prediction:
@@ -97,6 +125,8 @@ class Registrar:
         tracker, first = Tracker(full, self.refiner), None
         for projected, captured in frames:
             a, b = check_image("projected", projected), check_image("captured", captured)
+            if photos is not None:
+                b = normalise_capture(b, *photos)
             if first is None:
                 first = (a.shape, b.shape)
             elif (a.shape, b.shape) != first:

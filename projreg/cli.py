@@ -280,6 +280,10 @@ def _quality(quality: str, fast: bool) -> str:
     return "fast" if fast else quality
 
 
+PHOTOS_HELP = (
+    "Also each model as NAME+photos: on the capture divided by white and black photos rendered through each "
+    "sample's scene (generated data)."
+)
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
 PHOTOMETRIC_HELP = "With --compensation: geometric vs geometric + photometric against the desired view."
 
@@ -329,6 +333,7 @@ def bench(
     ] = 1,
     quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|balanced|accurate")] = DEFAULT_QUALITY,
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
+    photos: Annotated[bool, typer.Option("--photos", help=PHOTOS_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
     sheet: Annotated[
@@ -383,6 +388,7 @@ def bench(
                 progress=bar.done,
                 track=track,
                 batch_size=batch_size,
+                photos=photos,
             )
         reporting.write_outputs(
             report, json_path=json_out, markdown_path=markdown, sheet=None if sheet is None else (sheet, rows)
@@ -432,6 +438,20 @@ def predict(
             "--track", help="Folders of frames of one sequence, in name order: each frame from the previous one's flow."
         ),
     ] = False,
+    white: Annotated[
+        Path | None,
+        typer.Option(
+            help="Camera photo of a full-white projection: the surface is divided out of every captured image "
+            "(one photo for all pairs: a fixed rig).",
+            metavar="IMG",
+        ),
+    ] = None,
+    black: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --white: camera photo of a full-black projection (removes the ambient light).", metavar="IMG"
+        ),
+    ] = None,
     device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
     precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
     backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="auto|torch|onnxruntime")] = "auto",
@@ -464,6 +484,8 @@ def predict(
                 progress=bar.done,
                 max_flow=max_flow,
                 track=track,
+                white=white,
+                black=black,
             )
     except ProjregError as e:
         raise fail("projreg", e) from None

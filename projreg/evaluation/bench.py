@@ -27,7 +27,9 @@ baseline as ``NAME+track`` (:mod:`projreg.inference.track`: the first frame regi
 from the previous frame's flow); every result then carries ``jitter`` (``track.JitterAccumulator``)
 and the tracking rows ``tracking`` (how many frames were tracked, registered in full or re-registered
 after a lost track) and ``ms_mean`` (the mean time per frame, full registrations included).
-The report schema is documented in docs/cli/projreg.md.
+With ``photos=True`` (a generated dataset of built-in sources), each model also runs as ``NAME+photos``
+on the captured image with the surface divided out by the sample's white and black photos
+(:mod:`projreg.evaluation.rigphotos`). The report schema is documented in docs/cli/projreg.md.
 
 Convention: flow forward, projected -> captured, ``(H, W, 2)`` in pixels, ``flow[y, x] = (u, v)``.
 """
@@ -57,6 +59,7 @@ from .methods import DEFAULT_BASELINES, REFINE_MODES, Method, ModelRun, resolve_
 from .metrics import KEYS, EPEAccumulator, sample_indices
 from .reliability import ReliabilityAccumulator
 from .report import versus_baselines
+from .rigphotos import RigPhotos
 
 GROUPS = ("role", "family", "condition", "pair_role")
 SHEET_ROWS = 4
@@ -144,6 +147,7 @@ def run_bench(
     progress: Callable[[int, int], None] | None = None,
     track: bool = False,
     batch_size: int = 1,
+    photos: bool = False,
 ) -> dict:
     """Benchmark checkpoints and baselines on one dataset directory.
 
@@ -173,6 +177,8 @@ def run_bench(
         batch_size: > 1: each model's network runs on this many samples per call (pairs of one size
             batched, :class:`BatchedFlows`); a model's ``ms_per_pair`` then counts its share of the
             batch's network call.
+        photos: also each model as ``NAME+photos``, on the capture divided by the sample's white and
+            black photos (module docstring; the ``+photos`` rows follow the models and baselines).
 
     Returns:
         The report: ``{"dataset": {...}, "reference_model": str | None, "results": [...]}``, one
@@ -180,15 +186,18 @@ def run_bench(
     """
     data = Path(data)
     _check_options(refine, batch_size, track, compensation, photometric)
+    if photos and track:
+        raise ProjregError("--photos registers single pairs; drop --track")
     try:
         reader = ShardReader(data)
     except ProjsynthError as e:
         raise ProjregError(f"--data {data}: {e}") from e
     try:
         indices = _bench_indices(reader, data, track, limit)
+        rig = RigPhotos(data) if photos else None
         run = ModelRun(refine, device, precision, backend, quality, track, batch_size)
         methods, reference = resolve_methods(models, baselines, run, equalize)
-        methods += list(extra_methods)
+        methods += (rig.methods(methods) if rig else []) + list(extra_methods)
         if not methods:
             raise ProjregError("nothing to benchmark: no --model, no shipped reference model and --baselines none")
         names = [m.name for m in methods]
@@ -197,6 +206,8 @@ def run_bench(
         scores = [_Scores(track) for _ in methods]
         loop, uncompensated = (ClosedLoop(data, photometric), _Scores()) if compensation else (None, None)
         first = _read(reader, indices[0])
+        if rig:
+            rig.shoot(indices[0], first)
         _warm_up(methods, first)
         if progress:
             progress(0, len(indices))  # the bar from here: the inputs are good
@@ -207,6 +218,8 @@ def run_bench(
                 chunk = {done + j: first if done + j == 1 else _read(reader, kj) for j, kj in enumerate(ks)}
                 shares = _prefetch(methods, list(chunk.values()))
             s = chunk[done]
+            if rig:
+                rig.shoot(k, s)
             preds = _score_sample(methods, scores, s, k, shares, track)
             if loop is not None:
                 comp = loop.score(k, s, preds)

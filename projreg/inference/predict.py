@@ -12,6 +12,10 @@ pixel.
 The captured image may have another size than the projected one (a camera is not a projector): it
 is resized for the network and the flow is given in its own pixels (:mod:`projreg.geometry.frames`).
 
+With the camera's photos of a full-white and a full-black projection (``white``, ``black``), every
+captured image is registered with the surface divided out (:mod:`projreg.inference.photos`): one pair
+of photos for every pair and frame, as a fixed rig takes them; the EXR header's ``photos`` says so.
+
 Tracking (``track=True``, two folders of frames): the pairs are one sequence in name order; the first
 is registered in full, each next one from the previous one's flow (:mod:`projreg.inference.track`); the EXR
 header's ``tracking`` says which (``full``, ``tracked`` or ``lost``: re-registered in full).
@@ -42,7 +46,8 @@ from ..refine.config import DEFAULT_QUALITY
 from ..refine.config import quality as resolve_quality
 from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
-from .register import register_pairs
+from .photos import normalise_capture
+from .register import Photos, register_pairs, rig_photos
 from .runtime import DEFAULT_BACKEND, OnnxNetwork, TorchNetwork, finer_flow, flows_resized, open_network
 from .track import Tracker
 
@@ -146,6 +151,8 @@ def predict(
     progress: Callable[[int, int], None] | None = None,
     max_flow: float | None = None,
     track: bool = False,
+    white: Path | None = None,
+    black: Path | None = None,
 ) -> list[Predicted]:
     """Predict the flow of one pair of files, or of every pair of two folders.
 
@@ -168,6 +175,9 @@ def predict(
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flow.pictures.flow_picture``, with its legend).
         track: the pairs of two folders are the frames of one sequence, in name order (module docstring).
+        white, black: the camera's photos of a full-white and a full-black projection (``black``
+            optional), of every captured image's size: each captured image is registered with the
+            surface divided out (module docstring).
 
     Returns:
         One :class:`Predicted` per pair, in pair order (the caller warns about unregistered pairs).
@@ -195,20 +205,22 @@ def predict(
     guard_outputs(
         [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
         [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
-        + ([("--model", Path(weights))] if weights is not None else []),
+        + [(opt, Path(p)) for opt, p in (("--model", weights), ("--white", white), ("--black", black)) if p],
     )
+    photos = _photos(jobs[: 1 if track else len(jobs)], white, black)
     net = open_network(weights, backend=backend, device=device, precision=precision)
     max_side, finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
     refiner = GeometricRefiner(setting.refine) if refine else None
     if track:
-        return _track(jobs, net, refiner, (max_side, finer_side), progress, max_flow)
+        return _track(jobs, net, refiner, (max_side, finer_side), progress, max_flow, photos)
     results = []
     for start in range(0, len(jobs), batch_size):
         chunk = jobs[start : start + batch_size]
         pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
-        for job, reg in zip(chunk, register_pairs(net, refiner, pairs, max_side, batch_size, finer_side), strict=True):
+        regs = register_pairs(net, refiner, pairs, max_side, batch_size, finer_side, photos)
+        for job, reg in zip(chunk, regs, strict=True):
             pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
-            results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size))
+            results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size, photos=photos))
             if progress:
                 progress(len(results), len(jobs))
     return results
@@ -221,9 +233,11 @@ def _track(
     sides: tuple[int, int | None],
     progress: Callable[[int, int], None] | None,
     max_flow: float | None,
+    photos: Photos | None,
 ) -> list[Predicted]:
     """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`); the
-    network at ``sides`` (first, on escalation)."""
+    network at ``sides`` (first, on escalation); every captured frame with the surface divided out by
+    ``photos``."""
 
     def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
         finer = finer_flow(net, img0, img1, sides[1])
@@ -234,8 +248,10 @@ def _track(
     results = []
     for job in jobs:
         img0, img1 = _load(job.projected), _load(job.captured)
+        if photos is not None:
+            img1 = normalise_capture(img1, *photos)
         pred = register_any_size(tracker, img0, img1)
-        results.append(_write(job, pred, True, max_flow, tracking=tracker.last, camera=img1.shape[:2]))
+        results.append(_write(job, pred, True, max_flow, tracker.last, img1.shape[:2], photos))
         if progress:
             progress(len(results), len(jobs))
     return results
@@ -256,6 +272,20 @@ def _require_one_size(jobs: list[Job]) -> None:
                 )
 
 
+def _photos(jobs: list[Job], white: Path | None, black: Path | None) -> Photos | None:
+    """The rig's photos (:func:`~projreg.inference.register.rig_photos`), checked against the captured
+    image of every job (before any pair is registered and written; one more decode per pair)."""
+    photos = rig_photos(*(None if p is None else _load(p) for p in (white, black)))
+    for job in jobs if photos is not None else ():
+        shape = _load(job.captured).shape
+        if shape != photos[0].shape:
+            raise ProjregError(
+                f"--white {white} is {photos[0].shape[1]}x{photos[0].shape[0]} px but --captured {job.captured} "
+                f"is {shape[1]}x{shape[0]}; shoot the photos with the camera of the captured images, at their size"
+            )
+    return photos
+
+
 def _write(
     job: Job,
     pred: Prediction,
@@ -263,10 +293,12 @@ def _write(
     max_flow: float | None,
     tracking: str = "",
     camera: tuple[int, int] | None = None,
+    photos: Photos | None = None,
 ) -> Predicted:
     """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
     written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``); ``camera``:
-    the captured image's ``(H, W)``, the frame the flow's positions are in (header ``camera_size``)."""
+    the captured image's ``(H, W)``, the frame the flow's positions are in (header ``camera_size``);
+    ``photos``: the rig's photos the captured image was divided by (header ``photos``)."""
     valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
     attrs = {
         "registered": "yes" if pred.registered else "no",
@@ -279,6 +311,8 @@ def _write(
         attrs["reason"] = pred.reason
     if tracking:
         attrs["tracking"] = tracking
+    if photos is not None:
+        attrs["photos"] = "white and black" if photos[1] is not None else "white alone (ambient light kept)"
     try:
         files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs, confidence=pred.confidence))]
         if job.viz is not None:

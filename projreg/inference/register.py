@@ -17,7 +17,10 @@ import numpy as np
 from ..errors import ProjregError
 from ..geometry.frames import flow_to_captured, frame_scale, resize_to
 from ..refine.refiner import GeometricRefiner
+from .photos import check_photos, normalise_capture
 from .runtime import Network, finer_flow, flows_resized
+
+Photos = tuple[np.ndarray, np.ndarray | None]  # a rig's photos of a full-white and (optionally) a full-black projection
 
 
 @dataclass(frozen=True)
@@ -52,12 +55,18 @@ def register_pairs(
     max_side: int,
     batch_size: int = 1,
     finer_side: int | None = None,
+    photos: Photos | None = None,
 ) -> list[Registration]:
     """Each pair registered: the network on the pair (the captured image resized to the projected one,
     the pair shrunk to ``max_side``), ``batch_size`` pairs of one size per call, then the refinement
     (None: the network alone, every pixel claimed), which may ask for the network's flow again at up to
-    ``finer_side`` (:func:`~projreg.inference.runtime.finer_flow`); flows in each camera's own pixels."""
-    same = [(check_image("projected", a), resize_to(check_image("captured", b), a.shape)) for a, b in pairs]
+    ``finer_side`` (:func:`~projreg.inference.runtime.finer_flow`); flows in each camera's own pixels.
+    With ``photos`` (:func:`rig_photos`), every captured image first has the surface divided out
+    (:func:`~projreg.inference.photos.normalise_capture`)."""
+    views = [check_image("captured", b) for _, b in pairs]
+    if photos is not None:
+        views = [normalise_capture(b, *photos) for b in views]
+    same = [(check_image("projected", a), resize_to(b, a.shape)) for (a, _), b in zip(pairs, views, strict=True)]
     t0 = time.perf_counter()
     flows = flows_resized(net, same, max_side, batch_size)
     network_ms = 1000 * (time.perf_counter() - t0) / max(len(pairs), 1)
@@ -77,6 +86,18 @@ def register_pairs(
         flow = flow_to_captured(pred.flow, scale)
         out.append(Registration(flow, pred.claimed, pred.confidence, pred.registered, pred.reason, camera, timings))
     return out
+
+
+def rig_photos(white: np.ndarray | None, black: np.ndarray | None) -> Photos | None:
+    """``(white, black)`` checked (:func:`~projreg.inference.photos.check_photos`), None without a white
+    photo; a black photo alone is refused (it says nothing about the projector's light)."""
+    if white is None:
+        if black is not None:
+            raise ProjregError("--black needs --white: the black photo alone says nothing about the projector's light")
+        return None
+    photos = (check_image("white", white), None if black is None else check_image("black", black))
+    check_photos(*photos)
+    return photos
 
 
 def check_image(name: str, image: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProjsynthError
+from ..sim.photometric import noiseless
 from ..sim.render import alpha_field, camera_view, expose
 from .plan import Plan, resolve_plan, sample_key, sample_scene, source_images
 from .shards import PLAN_FILE, read_json
@@ -84,14 +85,16 @@ class Rerenderer:
             self._images = (pair, source_images(self.plan, pair))
         return self._images[1]
 
-    def views(self, k: int, images: list[np.ndarray]) -> list[View]:
+    def views(self, k: int, images: list[np.ndarray], *, noise: bool = True) -> list[View]:
         """Sample ``k``'s camera photo of each projector image (``(H, W, 3)`` uint8, the projector's
         frame), every one with the sample's own transparency field and noise stream (and, for a frame
-        of a sequence, its exposure: the motion blur)."""
+        of a sequence, its exposure: the motion blur); ``noise=False``: without the sensor's random
+        noise (:func:`~projsynth.sim.photometric.noiseless`, photos averaged over many frames)."""
         s = sample_scene(self.plan, k, self._sources(k))
+        photometry = s.photometry if noise else noiseless(s.photometry)
         alpha = alpha_field(s.projected.shape[:2], s.photometry["alpha"], s.photometry["alpha_var"], s.rng)
-        noise = s.rng if s.noise is None else s.noise
-        after_alpha = noise.bit_generator.state
+        stream = s.rng if s.noise is None else s.noise
+        after_alpha = stream.bit_generator.state
         view = camera_view(s.scene)
         views = [camera_view(sub) for sub in s.exposure] or [view]
         hc, wc = s.scene.camera.height, s.scene.camera.width
@@ -100,7 +103,7 @@ class Rerenderer:
         for image in images:
             if image.shape != s.projected.shape:
                 raise ProjsynthError(f"a projector image of shape {image.shape} for a {s.projected.shape} projector")
-            noise.bit_generator.state = after_alpha  # the same noise for every image
-            photo = expose(image, alpha, views, s.background, s.photometry, self.plan.blend, noise)
+            stream.bit_generator.state = after_alpha  # the same noise for every image
+            photo = expose(image, alpha, views, s.background, photometry, self.plan.blend, stream)
             out.append(View(photo, lit, source))
         return out

@@ -36,6 +36,13 @@ PAPER_IDENTITY = {
     "noise_mu": 0.0,
     "noise_sigma": 0.0,
 }
+SENSOR_NOISE = ("noise_sigma", "shot_noise", "read_noise")  # the random parts of both blends (noise_mu is a bias)
+
+
+def noiseless(p: dict[str, float]) -> dict[str, float]:
+    """Photometric parameters ``p`` with the sensor's random noise off and its bias kept: the mean of
+    many photos of one still scene (how a fixed rig's white and black photos are best shot)."""
+    return {**p, **{k: 0.0 for k in SENSOR_NOISE if k in p}}
 
 
 def composite(

@@ -11,6 +11,7 @@ from projreg import ProjregError
 from projreg.api import Registrar, compensate, end_point_error
 from projreg.cli import app
 from projreg.inference.compensate import compensate as compensate_arrays
+from projreg.inference.photos import normalise_capture
 from projsynth.flow.formats import read_flow_exr, read_flow_file
 
 
@@ -112,3 +113,32 @@ def test_predict_then_compensate_on_the_command_line_is_the_api_s_compensation(p
         assert result.exit_code == 0, result.stderr
         written = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
         np.testing.assert_array_equal(written, compensate(wanted, reg, **kwargs))
+
+
+def rig_photos(captured):
+    """Photos a rig could take of the scene behind ``captured``: a white brighter, a black darker."""
+    lift = captured.astype(np.int16)
+    return np.clip(lift + 60, 0, 255).astype(np.uint8), np.clip(lift // 3, 0, 255).astype(np.uint8)
+
+
+def test_register_with_the_rigs_photos_registers_the_capture_with_the_surface_divided_out(pairs, tiny_ckpt):
+    img0, img1 = pairs[0]
+    white, black = rig_photos(img1)
+    registrar = Registrar(tiny_ckpt, device="cpu")
+    for photos in ({"white": white, "black": black}, {"white": white}):
+        divided = normalise_capture(img1, **photos)
+        assert not np.array_equal(divided, img1)
+        expected = registrar.register(img0, divided)
+        for reg in (
+            registrar.register(img0, img1, **photos),
+            *registrar.register_batch([(img0, img1)] * 2, batch_size=2, **photos),
+            next(registrar.track([(img0, img1)], **photos)),
+        ):
+            np.testing.assert_allclose(reg.flow, expected.flow, atol=1e-4)
+            np.testing.assert_array_equal(reg.claimed, expected.claimed)
+    with pytest.raises(ProjregError, match=r"^--black needs --white"):
+        registrar.register(img0, img1, black=black)
+    with pytest.raises(ProjregError, match=r"^--white is 48x32 px but the captured image is 96x64"):
+        registrar.register(img0, img1, white=white[::2, ::2])
+    with pytest.raises(ProjregError, match=r"^white: expected a uint8 RGB array"):
+        registrar.register(img0, img1, white=white.astype(np.float32))

@@ -22,6 +22,16 @@ def test_rerendering_the_projected_image_gives_the_stored_photo_back(tiny_train,
             np.testing.assert_array_equal(view.image, s["captured"])
 
 
+def test_photos_without_noise_keep_the_scene_and_drop_the_sensor_noise(tiny_train, tiny_physical):
+    for root in (tiny_train, tiny_physical):
+        reader, rerenderer = ShardReader(root), Rerenderer(root)
+        s = reader.read(1)
+        clean, again = (rerenderer.views(1, [s["projected"]], noise=False)[0].image for _ in range(2))
+        np.testing.assert_array_equal(clean, again)  # no random stream left
+        residual = s["captured"].astype(np.float64) - clean  # the stored photo's noise: present, zero-mean-ish, small
+        assert 0 < np.std(residual) < 8 and abs(np.mean(residual)) < 2
+
+
 def test_scores_rank_flows_by_their_error(tiny_physical):
     reader, loop = ShardReader(tiny_physical), ClosedLoop(tiny_physical)
     for k in range(len(reader)):

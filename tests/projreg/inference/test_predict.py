@@ -5,6 +5,7 @@ from typer.testing import CliRunner
 
 import projreg.inference.predict
 import projreg.model.checkpoint
+from projreg.api import Registrar
 from projreg.cli import app
 from projreg.model.checkpoint import load_model
 from projreg.refine.refiner import GeometricRefiner
@@ -185,3 +186,72 @@ def test_track_mode_errors_name_the_option(pairs, tiny_ckpt, tmp_path, one_line_
     folders = ["--projected", tmp_path / "P", "--captured", tmp_path / "C"]
     result = _cli(*folders, "--out", tmp_path / "o", "--model", tiny_ckpt, "--track", "--no-refine")
     one_line_error(result, "--track", "--no-refine")
+
+
+def test_the_rigs_photos_divide_the_surface_out_of_every_captured_image(pairs, tiny_ckpt, tmp_path, one_line_error):
+    img0, img1 = pairs[0]
+    lift = img1.astype(np.int16)
+    white, black = np.clip(lift + 60, 0, 255).astype(np.uint8), (lift // 3).astype(np.uint8)
+    w, b = _write(tmp_path / "white.png", white), _write(tmp_path / "black.png", black)
+    for name in ("one", "two"):  # folder mode: one pair of photos for every pair (a fixed rig)
+        _write(tmp_path / "P" / f"{name}.png", img0)
+        _write(tmp_path / "C" / f"{name}.png", img1)
+    folders = ("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--model", tiny_ckpt)
+    registrar = Registrar(tiny_ckpt, device="cpu")
+    for photos, said in (
+        (("--white", w, "--black", b), "white and black"),
+        (("--white", w), "white alone (ambient light kept)"),
+    ):
+        out = tmp_path / said.split()[1]
+        result = _cli(*folders, "--out", out, *photos)
+        assert result.exit_code == 0, (result.stderr, result.exception)
+        expected = registrar.register(img0, img1, white=white, black=black if len(photos) == 4 else None)
+        for name in ("one", "two"):
+            flow, valid, header = read_flow_exr(out / f"{name}_flow.exr")
+            assert header["photos"] == said
+            np.testing.assert_allclose(flow, expected.flow, atol=1e-4)
+            np.testing.assert_array_equal(valid, expected.claimed)
+    files = ("--projected", tmp_path / "P" / "one.png", "--captured", tmp_path / "C" / "one.png", "--model", tiny_ckpt)
+    one_line_error(_cli(*files, "--out", tmp_path / "f.exr", "--black", b), "--black needs --white")
+    small = _write(tmp_path / "small.png", white[::2, ::2])
+    one_line_error(_cli(*folders, "--out", tmp_path / "o", "--white", small), f"--white {small} is 48x32 px", "96x64")
+    one_line_error(_cli(*files, "--out", tmp_path / "f.exr", "--white", b, "--black", w), "swapped")
+    picture = _write(tmp_path / "V" / "one_flow.png", white)  # a photo where --viz would write a picture
+    one_line_error(
+        _cli(*folders, "--out", tmp_path / "o", "--viz", tmp_path / "V", "--white", picture), "--viz", "--white"
+    )
+    assert not (tmp_path / "o").exists() and not (tmp_path / "f.exr").exists()
+
+
+def test_track_mode_divides_every_frame_by_the_same_photos(tiny_sequences, tiny_ckpt, tmp_path):
+    reader = ShardReader(tiny_sequences)
+    try:
+        frames = [reader.read(k) for k in range(2)]
+    finally:
+        reader.close()
+    for s in frames:
+        _write(tmp_path / "P" / f"{s['params']['frame']:02d}.png", s["projected"])
+        _write(tmp_path / "C" / f"{s['params']['frame']:02d}.png", s["captured"])
+    lift = frames[0]["captured"].astype(np.int16)
+    white, black = np.clip(lift + 60, 0, 255).astype(np.uint8), (lift // 3).astype(np.uint8)
+    photos = ("--white", _write(tmp_path / "w.png", white), "--black", _write(tmp_path / "b.png", black))
+    out = tmp_path / "out"
+    result = _cli(
+        "--projected",
+        tmp_path / "P",
+        "--captured",
+        tmp_path / "C",
+        "--out",
+        out,
+        "--model",
+        tiny_ckpt,
+        "--track",
+        *photos,
+    )
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    headers = [read_flow_exr(out / f"{i:02d}_flow.exr")[2] for i in range(2)]
+    assert [h["photos"] for h in headers] == ["white and black"] * 2 and headers[0]["tracking"] == "full"
+    first = Registrar(tiny_ckpt, device="cpu").register(
+        frames[0]["projected"], frames[0]["captured"], white=white, black=black
+    )
+    np.testing.assert_allclose(read_flow_exr(out / "00_flow.exr")[0], first.flow, atol=1e-4)
