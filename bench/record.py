@@ -179,9 +179,14 @@ SETS = (
         "Each method's flow used to compensate the projection, judged by what the camera then sees "
         "(`projreg bench --compensation --photometric`, docs/projreg-cli.md): two fresh test splits, one "
         "built-in pair over the 32 transforms of `SPREAD32`, one with the paper's blend and one with the "
-        "physical camera model. `comp` scores the camera's "
-        "view of the compensated projection against the wanted one; `geo` / `photo` compare geometric "
-        "against geometric + photometric compensation with the desired view (PSNR dB, SSIM, CIEDE2000).",
+        "physical camera model. `comp` scores the camera's view of each method's compensation as `projreg "
+        "compensate` makes it by default (content wherever the flow lands in the frame, a pair the method does "
+        "not register projected as it is) against the ground-truth compensation's view; `claimed only` the same "
+        "with content on the claimed pixels alone; `content on surface` the share of the projector pixels that "
+        "light the surface to which the default gives content (the worst pair in brackets); `geo` / `photo` "
+        "compare geometric against geometric + photometric compensation with the desired view (PSNR dB, SSIM, "
+        "CIEDE2000). `+photos` rows: the model registering the capture with the surface divided out by the "
+        "rig's white and black photos (`bench --photos`).",
         (
             _gen(f"{_B}/compensation/paper", f"--split test --pairs 1 --seed 321 --transforms {SPREAD32}"),
             _gen(
@@ -195,7 +200,7 @@ SETS = (
                 _bench(
                     f"{_B}/compensation/{blend}",
                     f"compensation-{blend}.json",
-                    "--baselines dis-medium,sift-ransac --compensation --photometric --limit 32",
+                    "--baselines dis-medium,sift-ransac --compensation --photometric --photos --limit 32",
                 ),
                 f"{blend} blend",
             )

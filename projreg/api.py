@@ -14,6 +14,7 @@ messages.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -26,7 +27,7 @@ from .geometry.frames import flow_to_captured, frame_scale, resize_to
 from .inference.compensate import check_aspect, prewarp
 from .inference.photos import normalise_capture
 from .inference.radiometric import calibrate, solve
-from .inference.register import Registration, check_image, register_pairs, rig_photos
+from .inference.register import Photos, Registration, check_image, register_pairs, rig_photos
 from .inference.runtime import DEFAULT_BACKEND, open_network
 from .inference.track import Tracker
 from .prediction import CONFIDENT, Prediction
@@ -66,8 +67,10 @@ class Registrar:
         max_side: int = 1024,
     ) -> None:
         setting = quality_setting(quality)
-        if max_side < 16:
-            raise ProjregError(f"--max-side must be >= 16, got {max_side}")
+        if not _is_int(max_side) or max_side < 16:
+            raise ProjregError(f"max_side: expected an integer >= 16, got {max_side!r}")
+        if model is not None and not isinstance(model, str | os.PathLike):
+            raise ProjregError(f"model: expected None, 'reference' or a path, got {type(model).__name__}")
         self.quality = setting.name
         self.max_side, self.finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
         self.network = open_network(model, backend=backend, device=device, precision=precision)
@@ -85,7 +88,8 @@ class Registrar:
         of a full-white and a full-black projection, of the captured image's size; the captured image
         is then registered with the surface divided out (:mod:`projreg.inference.photos`; ``white``
         alone: its colour, not the ambient light)."""
-        return self.register_batch([(projected, captured)], white=white, black=black)[0]
+        pair = check_image("projected", projected), check_image("captured", captured)
+        return self.register_batch([pair], white=white, black=black)[0]
 
     def register_batch(
         self,
@@ -98,6 +102,9 @@ class Registrar:
         """The registrations of several pairs, in order; the network runs on ``batch_size`` pairs of one
         size per call. ``white``, ``black``: as :meth:`register`, one pair of photos for every pair (a
         fixed rig)."""
+        if not _is_int(batch_size) or batch_size < 1:
+            raise ProjregError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
+        pairs = _checked_pairs(pairs)
         photos = rig_photos(white, black)
         return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size, self.finer_side, photos)
 
@@ -114,7 +121,14 @@ class Registrar:
         :meth:`register`, the same photos for every frame."""
         if self.refiner is None:
             raise ProjregError("tracking follows each frame with the refinement; use refine=True")
-        photos = rig_photos(white, black)
+        if not isinstance(frames, Iterable) or isinstance(frames, np.ndarray):
+            raise ProjregError(
+                f"frames: expected an iterable of (projected, captured) pairs, got {type(frames).__name__}"
+            )
+        return self._track(frames, rig_photos(white, black))
+
+    def _track(self, frames: Iterable[tuple[np.ndarray, np.ndarray]], photos: Photos | None) -> Iterator[Registration]:
+        """:meth:`track`'s generator, once its arguments are checked."""
         timings: dict[str, float] = {}
 
         def full(a: np.ndarray, b: np.ndarray) -> Prediction:
@@ -123,8 +137,8 @@ class Registrar:
             return Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
 
         tracker, first = Tracker(full, self.refiner), None
-        for projected, captured in frames:
-            a, b = check_image("projected", projected), check_image("captured", captured)
+        for i, frame in enumerate(frames):
+            a, b = _checked_pair(f"frames[{i}]", frame)
             if photos is not None:
                 b = normalise_capture(b, *photos)
             if first is None:
@@ -141,6 +155,24 @@ class Registrar:
             yield Registration(
                 flow, claimed, pred.confidence, pred.registered, pred.reason, b.shape[:2], dict(timings), tracker.last
             )
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _checked_pairs(pairs: object) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``pairs`` as a list of checked ``(projected, captured)`` images, or one line naming the bad one."""
+    if isinstance(pairs, np.ndarray) or not isinstance(pairs, Iterable):
+        raise ProjregError(f"pairs: expected a sequence of (projected, captured) pairs, got {type(pairs).__name__}")
+    return [_checked_pair(f"pairs[{i}]", pair) for i, pair in enumerate(pairs)]
+
+
+def _checked_pair(where: str, pair: object) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(pair, tuple | list) or len(pair) != 2:
+        got = f"{len(pair)} items" if isinstance(pair, tuple | list) else type(pair).__name__
+        raise ProjregError(f"{where}: expected a (projected, captured) pair, got {got}")
+    return check_image(f"{where} projected", pair[0]), check_image(f"{where} captured", pair[1])
 
 
 def compensate(

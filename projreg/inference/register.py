@@ -100,9 +100,18 @@ def rig_photos(white: np.ndarray | None, black: np.ndarray | None) -> Photos | N
     return photos
 
 
+MIN_IMAGE_SIDE = 8  # a smaller image holds no correspondence worth a flow (a 1 x 1 camera, an empty array)
+
+
 def check_image(name: str, image: np.ndarray) -> np.ndarray:
-    """``image`` as a uint8 RGB ``(H, W, 3)`` array, or one line naming it."""
-    image = np.asarray(image)
+    """``image`` as a uint8 RGB ``(H, W, 3)`` array of at least ``MIN_IMAGE_SIDE`` px a side, or one line
+    naming it."""
+    if not isinstance(image, np.ndarray):
+        raise ProjregError(f"{name}: expected a uint8 RGB numpy array (H, W, 3), got {type(image).__name__}")
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         raise ProjregError(f"{name}: expected a uint8 RGB array (H, W, 3), got {image.dtype} {image.shape}")
+    if min(image.shape[:2]) < MIN_IMAGE_SIDE:
+        raise ProjregError(
+            f"{name}: {image.shape[1]}x{image.shape[0]} px; an image needs at least {MIN_IMAGE_SIDE} px a side"
+        )
     return image

@@ -142,3 +142,36 @@ def test_register_with_the_rigs_photos_registers_the_capture_with_the_surface_di
         registrar.register(img0, img1, white=white[::2, ::2])
     with pytest.raises(ProjregError, match=r"^white: expected a uint8 RGB array"):
         registrar.register(img0, img1, white=white.astype(np.float32))
+
+
+def test_bad_batches_frames_and_options_are_one_line_naming_the_argument(pairs, tiny_ckpt):
+    img0, img1 = pairs[0]
+    registrar = Registrar(tiny_ckpt, device="cpu")
+    cases = [
+        (lambda: registrar.register_batch([img0, img1]), r"^pairs\[0\]: expected a \(projected, captured\) pair"),
+        (lambda: registrar.register_batch([(img0, img1, img1)]), r"^pairs\[0\]: .* got 3 items"),
+        (lambda: registrar.register_batch([(img0, img1)], batch_size=1.5), r"^batch_size: expected an integer"),
+        (lambda: registrar.register_batch([(img0, img1), (img0, img1[..., 0])]), r"^pairs\[1\] captured: expected"),
+        (lambda: Registrar(model=123), r"^model: expected None, 'reference' or a path, got int"),
+        (lambda: Registrar(tiny_ckpt, max_side=16.5), r"^max_side: expected an integer >= 16"),
+        (lambda: registrar.track(None), r"^frames: expected an iterable"),
+        (
+            lambda: registrar.register(np.zeros((0, 0, 3), np.uint8), img1),
+            r"^projected: 0x0 px; .* at least 8 px a side",
+        ),
+        (lambda: registrar.register(img0, np.zeros((1, 1, 3), np.uint8)), r"^captured: 1x1 px"),
+        (lambda: next(registrar.track([img0])), r"^frames\[0\]: expected a \(projected, captured\) pair"),
+        (lambda: compensate(img1, reg_flow_only), r"^registration: expected a Registration"),
+        (lambda: compensate(img1, registration, fill=300), r"^fill: must be an integer in 0..255"),
+        (lambda: compensate(img1, registration, fill=-1), r"^fill: must be an integer in 0..255"),
+        (
+            lambda: compensate(np.zeros((0, 0, 3), np.uint8), registration),
+            r"^content: 0x0 px; an image needs at least 8 px",
+        ),
+    ]
+    registration = registrar.register(img0, img1)
+    reg_flow_only = registration.flow
+    for call, says in cases:
+        with pytest.raises(ProjregError, match=says):
+            call()
+    assert len(registrar.register_batch(pair for pair in [(img0, img1)] * 2)) == 2  # any iterable, read once
