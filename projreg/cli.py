@@ -491,7 +491,19 @@ def compensate(
     ] = False,
     white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
     black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
-    gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
+    response: Annotated[
+        Path | None,
+        typer.Option(
+            help="The devices' curves measured by `projsynth response` (replaces --gamma).", metavar="FILE.json"
+        ),
+    ] = None,
+    gamma: Annotated[
+        float | None,
+        typer.Option(
+            help="Without --response: projector and camera gamma of the photometric model [default: 2.2].",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Pre-warp content: the projector image that makes the camera see CONTENT undistorted."""
     from .inference.compensate import compensate_files
@@ -502,15 +514,21 @@ def compensate(
                 "--photometric needs --white and --black: the camera's photos of a full-white and "
                 "a full-black projection"
             )
-        if not photometric and (white is not None or black is not None):
-            raise ProjregError("--white and --black calibrate the photometric correction; add --photometric")
-        result = compensate_files(content, flow, out, fill, (white, black) if photometric else None, gamma)
+        calibration = {"--white": white, "--black": black, "--response": response, "--gamma": gamma}
+        given = [option for option, value in calibration.items() if value is not None]
+        if not photometric and given:
+            raise ProjregError(f"{given[0]} sets the photometric correction; add --photometric")
+        if response is not None and gamma is not None:
+            raise ProjregError("--gamma is the assumption --response replaces by a measurement; drop --gamma")
+        photos = (white, black) if photometric else None
+        result = compensate_files(content, flow, out, fill, photos, 2.2 if gamma is None else gamma, response)
     except ProjregError as e:
         raise fail("projreg", e) from None
     for line in result["warnings"]:
         typer.echo(f"projreg: warning: {line}", err=True)
     h, w = result["size"]
     how = "geometric + photometric" if photometric else "geometric"
+    how += " with the measured response" if response is not None else ""
     typer.echo(
         f"{out}: {w}x{h} projector image ({how}), content on {result['lit']:.1%} of its pixels, "
         f"--fill {fill} elsewhere",

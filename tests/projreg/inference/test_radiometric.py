@@ -1,4 +1,5 @@
-"""Photometric compensation on a camera model written here: per-pixel gain and offset, gamma 2.2."""
+"""Photometric compensation on a camera model written here: per-pixel gain and offset, gamma 2.2, or a
+camera and a projector of other curves, measured."""
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ from projreg import ProjregError
 from projreg.cli import app
 from projreg.evaluation.bench import run_bench
 from projreg.inference.radiometric import calibrate, solve, to_linear
+from projsynth.structured.response import Response
 
 
 def camera(projector: np.ndarray, offset: np.ndarray, gain: np.ndarray) -> np.ndarray:
@@ -34,6 +36,34 @@ def test_solve_makes_the_camera_show_the_wanted_view_on_a_textured_surface():
     residual = lambda v: np.abs(np.polyval(fit(v), target) - v)  # noqa: E731
     assert np.median(residual(seen)) < 0.01 < np.median(residual(plain))
     assert 0 < scale <= 0.8
+
+
+def test_measured_curves_compensate_a_camera_and_projector_that_are_not_gamma_2_2():
+    """A camera of exponent 1.6 (F^-1(c) = c^1.6) and a projector of gamma 2.6: with their curves the
+    compensated view is the wanted one (in the camera's linear light, up to one brightness and contrast),
+    with gamma 2.2 assumed for both it is several times further off."""
+    rng = np.random.default_rng(1)
+    h, w = 48, 64
+    albedo = rng.uniform(0.3, 1.0, (h, w, 3)).astype(np.float32)
+    offset, gain = 0.06 * albedo, 0.8 * albedo
+
+    def shoot(projector: np.ndarray) -> np.ndarray:
+        lin = offset + gain * (projector / 255.0) ** 2.6
+        return np.clip(np.rint(255 * np.clip(lin, 0, 1) ** (1 / 1.6)), 0, 255).astype(np.uint8)
+
+    white, black = shoot(np.full((h, w, 3), 255, np.uint8)), shoot(np.zeros((h, w, 3), np.uint8))
+    wanted = rng.integers(40, 220, (h, w, 3), dtype=np.uint8)
+    codes = np.arange(256) / 255
+    measured = Response(1.6, np.tile(codes**2.6, (3, 1)).astype(np.float32))
+    target = (wanted / 255.0) ** 1.6
+
+    def off(model) -> float:
+        seen = (shoot(solve(wanted, model)[0]) / 255.0) ** 1.6
+        fit = np.polyfit(target.ravel(), seen.ravel(), 1)
+        return float(np.median(np.abs(np.polyval(fit, target) - seen)))
+
+    exact, assumed = off(calibrate(white, black, response=measured)), off(calibrate(white, black))
+    assert exact < 0.005 and assumed > 3 * exact, (exact, assumed)
 
 
 def test_calibration_refuses_mismatched_photos():
@@ -65,6 +95,42 @@ def test_compensate_photometric_needs_both_photos(tmp_path):
         ],
     )
     assert result.exit_code == 2 and "--black" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--response", "r.json"], "--response sets the photometric correction; add --photometric"),
+        (["--gamma", "2.4"], "--gamma sets the photometric correction; add --photometric"),
+        (
+            ["--photometric", "--white", "w.png", "--black", "b.png", "--response", "r.json", "--gamma", "2"],
+            "drop --gamma",
+        ),
+    ],
+)
+def test_compensate_response_options_are_checked(tmp_path, extra, needle, one_line_error):
+    args = ["compensate", "--content", "a.png", "--flow", "f.exr", "--out", str(tmp_path / "o.png"), *extra]
+    one_line_error(CliRunner().invoke(app, args), needle)
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_compensate_refuses_a_response_file_that_is_not_one(tiny_physical, tmp_path, one_line_error):
+    import cv2
+
+    from projsynth.dataset.shards import ShardReader
+    from projsynth.flow.formats import write_flow_exr
+
+    s = ShardReader(tiny_physical).read(0)
+    write_flow_exr(tmp_path / "f.exr", s["flow"], s["valid"], "truth")
+    for name in ("a", "w", "b"):
+        cv2.imwrite(str(tmp_path / f"{name}.png"), s["captured"])
+    bad = tmp_path / "r.json"
+    bad.write_text('{"format_version": 1, "camera": {"exponent": 2.2}, "projector": {"levels": [0, 255]}}')
+    files = {k: str(tmp_path / v) for k, v in (("a", "a.png"), ("w", "w.png"), ("b", "b.png"), ("f", "f.exr"))}
+    args = ["compensate", "--content", files["a"], "--flow", files["f"], "--out", str(tmp_path / "o.png")]
+    args += ["--photometric", "--white", files["w"], "--black", files["b"], "--response", str(bad)]
+    one_line_error(CliRunner().invoke(app, args), bad, "not a response file")
+    assert not (tmp_path / "o.png").exists()
 
 
 def test_compensate_photometric_end_to_end(tiny_physical, tmp_path):
