@@ -282,6 +282,10 @@ def _quality(quality: str, fast: bool) -> str:
 
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
 PHOTOMETRIC_HELP = "With --compensation: geometric vs geometric + photometric against the desired view."
+RESPONSE_HELP = (
+    "With --photometric: the devices' curves, gamma (assumed: 1 for the paper's blend, 2.2 for the physical "
+    "one) or measured per sample from its views of grey levels (`projsynth response`) [default: gamma]."
+)
 
 
 @app.command(cls=Command)
@@ -331,6 +335,7 @@ def bench(
     fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
+    response: Annotated[str | None, typer.Option(help=RESPONSE_HELP, metavar="gamma|measured")] = None,
     sheet: Annotated[
         Path | None,
         typer.Option(
@@ -379,6 +384,7 @@ def bench(
                 quality=_quality(quality, fast),
                 compensation=compensation,
                 photometric=photometric,
+                response=response,
                 sheet=rows,
                 progress=bar.done,
                 track=track,

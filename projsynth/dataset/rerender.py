@@ -84,10 +84,14 @@ class Rerenderer:
             self._images = (pair, source_images(self.plan, pair))
         return self._images[1]
 
-    def views(self, k: int, images: list[np.ndarray]) -> list[View]:
+    def views(self, k: int, images: list[np.ndarray], same_noise: bool = True) -> list[View]:
         """Sample ``k``'s camera photo of each projector image (``(H, W, 3)`` uint8, the projector's
         frame), every one with the sample's own transparency field and noise stream (and, for a frame
-        of a sequence, its exposure: the motion blur)."""
+        of a sequence, its exposure: the motion blur).
+
+        ``same_noise``: every photo with the stored photo's noise draw, so that two views differ only by
+        what was projected; False: each with a draw of its own (the stream continued, image after
+        image), as photos shot one after another are, e.g. the grey levels of a response measurement."""
         s = sample_scene(self.plan, k, self._sources(k))
         alpha = alpha_field(s.projected.shape[:2], s.photometry["alpha"], s.photometry["alpha_var"], s.rng)
         noise = s.rng if s.noise is None else s.noise
@@ -100,7 +104,8 @@ class Rerenderer:
         for image in images:
             if image.shape != s.projected.shape:
                 raise ProjsynthError(f"a projector image of shape {image.shape} for a {s.projected.shape} projector")
-            noise.bit_generator.state = after_alpha  # the same noise for every image
+            if same_noise:
+                noise.bit_generator.state = after_alpha
             photo = expose(image, alpha, views, s.background, s.photometry, self.plan.blend, noise)
             out.append(View(photo, lit, source))
         return out
