@@ -110,6 +110,13 @@ class Response:
         """Projector code values (uint8 ``(..., 3)``) to the light they emit, float32 in [0, 1]."""
         return np.stack([self.projector[c][image[..., c]] for c in range(3)], axis=-1)
 
+    def predict(self, black: np.ndarray, white: np.ndarray, level: int) -> np.ndarray:
+        """The camera's photo (float, 0-255) of uniform code value ``level`` predicted from its photos of
+        black and white (uint8 ``(..., 3)``): the per-pixel model that compensation inverts."""
+        offset = self.camera_linear(black)
+        light = offset + (self.camera_linear(white) - offset) * self.projector[:, level]
+        return 255 * np.clip(light, 0, 1) ** (1 / self.camera_exponent)
+
     def projector_codes(self, light: np.ndarray) -> np.ndarray:
         """The code values (uint8 ``(..., 3)``) that emit ``light`` (``(..., 3)`` in [0, 1]): the inverse curve."""
         codes = np.arange(256, dtype=np.float32)
