@@ -234,11 +234,11 @@ def _samples(levels: tuple[int, ...], photos: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(photos[:, ys[pick], xs[pick]].transpose(1, 0, 2))
 
 
-def _fit_at(c: np.ndarray, valid: np.ndarray, g: np.ndarray, exponent: float, iterations: int) -> tuple:
+def _fit_at(c: np.ndarray, valid: np.ndarray, g: np.ndarray, exponent: float, steps: int) -> tuple:
     """Least squares in camera values of ``c`` ``(P, K, 3)`` for one camera exponent, from ``g`` ``(K, 3)``:
-    Gauss-Newton steps, each solving every pixel's ``(o, a)`` given ``g`` and then the levels' ``g`` with the
-    pixels' parameters eliminated (variable projection), halved until the residual falls. Returns the new
-    ``g`` and the rms residual over the valid samples (full scale 1)."""
+    up to ``steps`` Gauss-Newton steps, each solving every pixel's ``(o, a)`` given ``g`` and then the
+    levels' ``g`` with the pixels' parameters eliminated (variable projection), halved until the residual
+    falls. Returns the new ``g`` and the rms residual over the valid samples (full scale 1)."""
     g, valid = g.astype(np.float64), valid.astype(np.float32)
     # g(0) = 0 pins the pixels' offsets through the black step's samples only; without enough of them
     # (a dark room, near black left out), g -> b + (1 - b) g fits as well: the first level with samples
@@ -248,7 +248,7 @@ def _fit_at(c: np.ndarray, valid: np.ndarray, g: np.ndarray, exponent: float, it
     free = np.arange(first + 1, g.shape[0] - 1)
     floor = SLOPE_FLOOR**exponent
     fit = _pixels(c, valid, np.maximum(c, SLOPE_FLOOR).astype(np.float64) ** exponent, g, exponent, floor)
-    for _ in range(iterations):
+    for _ in range(steps):
         o, a, w, t, m, rms = fit
         step = _level_step(t - o[:, None] - a[:, None] * g, w, a, g, m, free)
         for _ in range(STEP_HALVINGS):

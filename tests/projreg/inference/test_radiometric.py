@@ -1,6 +1,8 @@
 """Photometric compensation on a camera model written here: per-pixel gain and offset, gamma 2.2, or a
 camera and a projector of other curves, measured."""
 
+import json
+
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -114,21 +116,61 @@ def test_compensate_response_options_are_checked(tmp_path, extra, needle, one_li
     assert not (tmp_path / "o.png").exists()
 
 
-def test_compensate_refuses_a_response_file_that_is_not_one(tiny_physical, tmp_path, one_line_error):
+def photometric_args(tiny_physical, folder) -> list[str]:
+    """``compensate --photometric`` on sample 0 of ``tiny_physical``: its picture, its truth, its rig's
+    white and black photos, written to ``folder``; ``--out folder/o.png``."""
     import cv2
 
+    from projsynth.dataset.rerender import Rerenderer
     from projsynth.dataset.shards import ShardReader
     from projsynth.flow.formats import write_flow_exr
 
     s = ShardReader(tiny_physical).read(0)
-    write_flow_exr(tmp_path / "f.exr", s["flow"], s["valid"], "truth")
-    for name in ("a", "w", "b"):
-        cv2.imwrite(str(tmp_path / f"{name}.png"), s["captured"])
+    white, black = Rerenderer(tiny_physical).views(
+        0, [np.full_like(s["projected"], 255), np.zeros_like(s["projected"])]
+    )
+    write_flow_exr(folder / "f.exr", s["flow"], s["valid"], "truth")
+    for name, image in (("a", s["projected"]), ("w", white.image), ("b", black.image)):
+        cv2.imwrite(str(folder / f"{name}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    args = ["compensate", "--content", str(folder / "a.png"), "--flow", str(folder / "f.exr")]
+    return [
+        *args,
+        "--out",
+        str(folder / "o.png"),
+        "--photometric",
+        "--white",
+        str(folder / "w.png"),
+        "--black",
+        str(folder / "b.png"),
+    ]
+
+
+def test_compensate_reads_a_response_file(tiny_physical, tmp_path):
+    """A measured response that is gamma 2.2 for both devices gives gamma 2.2's projector image, to the
+    code value (the curve through 17 levels and its inverse)."""
+    import cv2
+
+    from projsynth.structured.response import projector_curve, response_record
+
+    levels = tuple(int(v) for v in np.rint(np.linspace(0, 255, 17)))
+    points = np.tile((np.array(levels) / 255) ** 2.2, (3, 1))
+    curves = Response(2.2, projector_curve(levels, points), True, (2.1, 2.3), levels, points, 1.0, 100)
+    (tmp_path / "r.json").write_text(json.dumps(response_record(curves)))
+    args = photometric_args(tiny_physical, tmp_path)
+    shown, lines = [], []
+    for extra in (["--response", str(tmp_path / "r.json")], []):
+        result = CliRunner().invoke(app, [*args, *extra])
+        assert result.exit_code == 0, result.stderr
+        shown.append(cv2.imread(str(tmp_path / "o.png")).astype(int))
+        lines.append(result.stderr)
+    assert "with the measured response" in lines[0] and "measured" not in lines[1]
+    assert np.abs(shown[0] - shown[1]).max() <= 1 and (shown[0] != shown[1]).mean() < 0.01
+
+
+def test_compensate_refuses_a_response_file_that_is_not_one(tiny_physical, tmp_path, one_line_error):
     bad = tmp_path / "r.json"
     bad.write_text('{"format_version": 1, "camera": {"exponent": 2.2}, "projector": {"levels": [0, 255]}}')
-    files = {k: str(tmp_path / v) for k, v in (("a", "a.png"), ("w", "w.png"), ("b", "b.png"), ("f", "f.exr"))}
-    args = ["compensate", "--content", files["a"], "--flow", files["f"], "--out", str(tmp_path / "o.png")]
-    args += ["--photometric", "--white", files["w"], "--black", files["b"], "--response", str(bad)]
+    args = [*photometric_args(tiny_physical, tmp_path), "--response", str(bad)]
     one_line_error(CliRunner().invoke(app, args), bad, "not a response file")
     assert not (tmp_path / "o.png").exists()
 
