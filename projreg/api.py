@@ -21,6 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from projsynth.errors import ProjsynthError
+from projsynth.structured.response import Response, read_response
+
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import flow_to_captured, frame_scale, resize_to
@@ -182,7 +185,8 @@ def compensate(
     fill: int = 0,
     white: np.ndarray | None = None,
     black: np.ndarray | None = None,
-    gamma: float = 2.2,
+    gamma: float | None = None,
+    response: Response | str | Path | None = None,
     coverage: str = "complete",
     min_confidence: float = 0.0,
 ) -> np.ndarray:
@@ -192,7 +196,10 @@ def compensate(
     register projected as it is (``coverage="claimed"``: only the claimed pixels; ``min_confidence``:
     only where the confidence reaches it; :mod:`projreg.inference.compensate`). With ``white`` and
     ``black`` (the camera's photos of a full-white and a full-black projection) also corrected for the
-    surface's colour and light, as ``--photometric``. Returns uint8 RGB on the projected grid."""
+    surface's colour and light, as ``--photometric``: with the devices' measured ``response`` (a
+    :class:`projsynth.structured.response.Response`, e.g. from ``projsynth.fit_device_response``, or the
+    path of a ``projsynth response`` file), else ``gamma`` for both (2.2 by default). Returns uint8 RGB
+    on the projected grid."""
     if not isinstance(registration, Registration):
         raise ProjregError(
             f"registration: expected a Registration (Registrar.register's answer), got {type(registration).__name__}"
@@ -204,8 +211,17 @@ def compensate(
     check_aspect(image.shape, tuple(camera), "content")
     if (white is None) != (black is None):
         raise ProjregError("photometric compensation needs both the white and the black photo")
+    if white is None and (response is not None or gamma is not None):
+        raise ProjregError("response and gamma set the photometric correction; give the white and black photos")
+    if response is not None and gamma is not None:
+        raise ProjregError("gamma is the assumption a measured response replaces; give one of the two")
+    if isinstance(response, str | Path):
+        try:
+            response = read_response(Path(response))
+        except ProjsynthError as e:
+            raise ProjregError(str(e)) from e
     if white is not None:
-        model = calibrate(check_image("white", white), check_image("black", black), gamma)
+        model = calibrate(check_image("white", white), check_image("black", black), gamma or 2.2, response=response)
         if white.shape[:2] != tuple(camera):
             raise ProjregError(f"white photo is {white.shape[:2]}, the registration's camera frame {tuple(camera)}")
         image = solve(resize_to(image, white.shape), model)[0]

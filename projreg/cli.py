@@ -286,6 +286,10 @@ PHOTOS_HELP = (
 )
 COMPENSATION_HELP = "Also judge each flow by the camera's view of its compensation (generated data)."
 PHOTOMETRIC_HELP = "With --compensation: geometric vs geometric + photometric against the desired view."
+RESPONSE_HELP = (
+    "With --photometric: the devices' curves, gamma (assumed: 1 for the paper's blend, 2.2 for the physical "
+    "one) or measured per sample from its views of grey levels (`projsynth response`) [default: gamma]."
+)
 
 
 @app.command(cls=Command)
@@ -336,6 +340,7 @@ def bench(
     photos: Annotated[bool, typer.Option("--photos", help=PHOTOS_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
+    response: Annotated[str | None, typer.Option(help=RESPONSE_HELP, metavar="gamma|measured")] = None,
     sheet: Annotated[
         Path | None,
         typer.Option(
@@ -384,6 +389,7 @@ def bench(
                 quality=_quality(quality, fast),
                 compensation=compensation,
                 photometric=photometric,
+                response=response,
                 sheet=rows,
                 progress=bar.done,
                 track=track,
@@ -513,7 +519,19 @@ def compensate(
     ] = False,
     white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
     black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
-    gamma: Annotated[float, typer.Option(help="Projector and camera gamma of the photometric model.")] = 2.2,
+    response: Annotated[
+        Path | None,
+        typer.Option(
+            help="The devices' curves measured by `projsynth response` (replaces --gamma).", metavar="FILE.json"
+        ),
+    ] = None,
+    gamma: Annotated[
+        float | None,
+        typer.Option(
+            help="Without --response: projector and camera gamma of the photometric model [default: 2.2].",
+            show_default=False,
+        ),
+    ] = None,
     coverage: Annotated[
         str,
         typer.Option(
@@ -542,16 +560,22 @@ def compensate(
                 "--photometric needs --white and --black: the camera's photos of a full-white and "
                 "a full-black projection"
             )
-        if not photometric and (white is not None or black is not None):
-            raise ProjregError("--white and --black calibrate the photometric correction; add --photometric")
+        calibration = {"--white": white, "--black": black, "--response": response, "--gamma": gamma}
+        given = [option for option, value in calibration.items() if value is not None]
+        if not photometric and given:
+            raise ProjregError(f"{given[0]} sets the photometric correction; add --photometric")
+        if response is not None and gamma is not None:
+            raise ProjregError("--gamma is the assumption --response replaces by a measurement; drop --gamma")
         photos = (white, black) if photometric else None
-        result = compensate_files(content, flow, out, fill, photos, gamma, coverage, min_confidence)
+        gamma = 2.2 if gamma is None else gamma
+        result = compensate_files(content, flow, out, fill, photos, gamma, coverage, min_confidence, response)
     except ProjregError as e:
         raise fail("projreg", e) from None
     for line in result["warnings"]:
         typer.echo(f"projreg: warning: {line}", err=True)
     h, w = result["size"]
     how = "geometric + photometric" if photometric else "geometric"
+    how += " with the measured response" if response is not None else ""
     if not result["registered"] and coverage == "complete":
         how = "photometric only" if photometric else "uncompensated"
         typer.echo(

@@ -6,13 +6,13 @@ projected -> captured, on the projected grid: ``flow[y, x] = (u, v)`` means proj
 ``(x, y)`` is seen at camera pixel ``(x + u, y + v)``.
 
 The in-memory API (:mod:`projsynth.api`, docs/api.md) is exported here: ``open_dataset``,
-``render_pair``, ``make_patterns``, ``decode_photos``; it is imported on first use.
+``render_pair``, ``make_patterns``, ``decode_photos``, ``fit_device_response``; it is imported on first use.
 """
 
 from .errors import ProjsynthError
 from .versions import FORMAT_VERSION, READABLE_FORMATS, __version__
 
-_API = ("Dataset", "open_dataset", "render_pair", "make_patterns", "decode_photos")
+_API = ("Dataset", "open_dataset", "render_pair", "make_patterns", "decode_photos", "fit_device_response")
 __all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "ProjsynthError", "__version__", *_API]
 
 

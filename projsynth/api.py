@@ -19,6 +19,7 @@ from .dataset.shards import ShardReader
 from .errors import ProjsynthError
 from .structured.decode import Correspondence, decode
 from .structured.patterns import PatternSet, make_set
+from .structured.response import Response, fit_response
 
 
 class Dataset(Sequence[dict]):
@@ -79,26 +80,52 @@ def render_pair(
 
 
 def make_patterns(kind: str, size: tuple[int, int], **options: int | tuple[int, int]) -> PatternSet:
-    """A structured-light pattern set (``graycode``, ``dots`` or ``opencv-graycode``) for a projector of
-    ``size``; ``options`` as ``projsynth patterns``' (``period``, ``shifts``, ``grid``). Its ``images()``
-    are the patterns, uint8 ``(H, W)``, in projection order."""
+    """A pattern set (``graycode``, ``dots``, ``opencv-graycode`` or ``response``) for a projector of
+    ``size``; ``options`` as ``projsynth patterns``' (``period``, ``shifts``, ``grid``, ``levels``). Its
+    ``images()`` are the patterns, uint8 ``(H, W)``, in projection order."""
     return make_set(kind, tuple(size), **options)
+
+
+def fit_device_response(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Response:
+    """The camera's and the projector's response curves from the camera's photos of a ``response`` set
+    (uint8 or uint16 RGB ``(Hc, Wc, 3)``, in projection order), as ``projsynth response`` fits them from
+    files; ``projreg.api.compensate(response=...)`` takes the result."""
+    if patterns.kind != "response":
+        raise ProjsynthError(f"a {patterns.kind} set; the response is measured from make_patterns('response', ...)")
+    if len(photos) != len(patterns.names):
+        raise ProjsynthError(f"{len(photos)} photos for {len(patterns.names)} grey levels")
+    return fit_response(patterns.params["levels"], np.stack(_full_scale(photos, "photos", rgb=True)))
 
 
 def decode_photos(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Correspondence:
     """The camera's photos of ``patterns`` (uint8 or uint16, gray ``(Hc, Wc)`` or RGB, in projection order)
     decoded: ``flow`` and ``valid`` on the projector grid, ``stats``; as ``projsynth decode`` reads them
     from files (grey in [0, 1] at full bit depth, colour as the mean of the channels)."""
-    gray = []
-    for p in photos:
-        p = np.asarray(p)
-        if p.dtype not in (np.uint8, np.uint16) or p.ndim not in (2, 3):
-            raise ProjsynthError(f"photos: expected uint8 or uint16 images, got {p.dtype} {p.shape}")
-        g = p.astype(np.float32) / np.float32(np.iinfo(p.dtype).max)
-        gray.append(g if g.ndim == 2 else g[..., :3].mean(axis=-1))
-    if len({g.shape for g in gray}) > 1:
-        raise ProjsynthError(f"photos of several sizes: {sorted({g.shape for g in gray})}")
+    gray = [g if g.ndim == 2 else g[..., :3].mean(axis=-1) for g in _full_scale(photos, "photos")]
     return decode(patterns, np.stack(gray))
 
 
-__all__ = ["Dataset", "decode_photos", "make_patterns", "open_dataset", "render_pair"]
+def _full_scale(photos: Sequence[np.ndarray], name: str, rgb: bool = False) -> list[np.ndarray]:
+    """``photos`` (uint8 or uint16; grey or colour, or ``(Hc, Wc, 3)`` with ``rgb``) as float32 in [0, 1] of
+    full scale, all of one size."""
+    out = []
+    for p in photos:
+        p = np.asarray(p)
+        if p.dtype not in (np.uint8, np.uint16) or p.ndim not in (2, 3) or (rgb and p.shape[2:] != (3,)):
+            kind = " RGB (H, W, 3)" if rgb else ""
+            raise ProjsynthError(f"{name}: expected uint8 or uint16{kind} images, got {p.dtype} {p.shape}")
+        out.append(p.astype(np.float32) / np.float32(np.iinfo(p.dtype).max))
+    if len({g.shape[:2] for g in out}) > 1:
+        raise ProjsynthError(f"{name} of several sizes: {sorted({g.shape[:2] for g in out})}")
+    return out
+
+
+__all__ = [
+    "Dataset",
+    "Response",
+    "decode_photos",
+    "fit_device_response",
+    "make_patterns",
+    "open_dataset",
+    "render_pair",
+]

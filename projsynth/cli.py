@@ -20,6 +20,7 @@ from .errors import ProjsynthError
 from .structured.capture import capture as capture_scene
 from .structured.decode import decode_folder
 from .structured.patterns import make_set, parse_grid, read_patterns, write_patterns
+from .structured.response import fit_folder
 from .utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, output_path, run_console
 
 app = typer.Typer(**PLAIN_HELP, help="Reproducible projector-camera pairs with exact ground-truth flow.")
@@ -272,8 +273,8 @@ def patterns(
     kind: Annotated[
         str,
         typer.Option(
-            help="graycode (dense, sub-pixel), dots (the paper's 11-image protocol) or opencv-graycode "
-            "(OpenCV's GrayCodePattern layout).",
+            help="graycode (dense, sub-pixel), dots (the paper's 11-image protocol), opencv-graycode "
+            "(OpenCV's GrayCodePattern layout) or response (grey levels: `projsynth response`).",
             metavar="KIND",
         ),
     ],
@@ -290,10 +291,14 @@ def patterns(
         typer.Option(help="graycode: fringe period in projector px, a multiple of 4 in 8..1024 [default: 16]."),
     ] = None,
     shifts: Annotated[int | None, typer.Option(help="graycode: phase shifts per axis, 3..64 [default: 8].")] = None,
+    levels: Annotated[
+        int | None, typer.Option(help="response: grey levels from black to white, 5..256 [default: 17].")
+    ] = None,
 ) -> None:
     """Write a structured-light pattern set to project, in order (docs/real-rig.md)."""
     try:
-        pattern_set = make_set(kind, parse_size(size), None if grid is None else parse_grid(grid), period, shifts)
+        grid_size = None if grid is None else parse_grid(grid)
+        pattern_set = make_set(kind, parse_size(size), grid_size, period, shifts, levels)
         files = write_patterns(pattern_set, out)
     except ProjsynthError as e:
         raise fail("projsynth", e) from None
@@ -393,6 +398,22 @@ def decode(
     except ProjsynthError as e:
         raise fail("projsynth", e) from None
     typer.echo(f"{out}: {summary}", err=True)
+
+
+@app.command(cls=Command)
+def response(
+    patterns_dir: Annotated[
+        Path, typer.Option("--patterns", help="Folder written by `projsynth patterns --kind response`.", metavar="DIR")
+    ],
+    captures: Annotated[Path, typer.Option(help="Folder of the photos, named as the patterns.", metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="Response file to write (JSON).", parser=output_path, metavar="FILE.json")],
+) -> None:
+    """Measure the camera's and the projector's response curves from photos of grey levels (docs/real-rig.md)."""
+    try:
+        line = fit_folder(patterns_dir, captures, out)
+    except ProjsynthError as e:
+        raise fail("projsynth", e) from None
+    typer.echo(f"{out}: {line}", err=True)
 
 
 def main() -> None:

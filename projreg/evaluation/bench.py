@@ -54,7 +54,7 @@ from ..inference.track import JitterAccumulator
 from ..model.checkpoint import reference_checkpoint
 from ..prediction import Prediction, as_prediction
 from ..refine.config import DEFAULT_QUALITY
-from .closedloop import UNCOMPENSATED, ClosedLoop, compensation_means, sheet_row
+from .closedloop import RESPONSES, UNCOMPENSATED, ClosedLoop, compensation_means, sheet_row
 from .methods import DEFAULT_BASELINES, REFINE_MODES, Method, ModelRun, resolve_methods
 from .metrics import KEYS, EPEAccumulator, sample_indices
 from .reliability import ReliabilityAccumulator
@@ -143,6 +143,7 @@ def run_bench(
     quality: str = DEFAULT_QUALITY,
     compensation: bool = False,
     photometric: bool = False,
+    response: str | None = None,
     sheet: list[np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
     track: bool = False,
@@ -170,6 +171,9 @@ def run_bench(
             (``comp_psnr``, ``comp_ssim`` and an ``uncompensated`` row; :mod:`projreg.evaluation.closedloop`).
         photometric: with ``compensation``, also geometric-only vs geometric + photometric against the
             desired view (``geo_*``, ``photo_*``).
+        response: with ``photometric``, the devices' curves of the photometric model: ``gamma`` (None: the
+            default), assumed, or ``measured`` per sample from grey levels (``closedloop.ClosedLoop``); the
+            report's ``photometric_response`` says which, and how the fits went.
         sheet: with ``compensation``, a list that receives a contact-sheet row (``closedloop.sheet_row``)
             for each of the first ``SHEET_ROWS`` samples: the first method's pictures.
         progress: called ``(done, total)`` once the inputs are checked (``done`` 0), then after each sample.
@@ -188,6 +192,9 @@ def run_bench(
     _check_options(refine, batch_size, track, compensation, photometric)
     if photos and track:
         raise ProjregError("--photos registers single pairs; drop --track")
+    if response is not None and not photometric:
+        raise ProjregError("--response chooses the photometric model's device curves; add --photometric")
+    response = response or RESPONSES[0]
     try:
         reader = ShardReader(data)
     except ProjsynthError as e:
@@ -204,7 +211,7 @@ def run_bench(
         if len(set(names)) < len(names):
             raise ProjregError(f"method names must be unique, got {', '.join(names)}")
         scores = [_Scores(track) for _ in methods]
-        loop, uncompensated = (ClosedLoop(data, photometric), _Scores()) if compensation else (None, None)
+        loop, uncompensated = (ClosedLoop(data, photometric, response), _Scores()) if compensation else (None, None)
         first = _read(reader, indices[0])
         if rig:
             rig.shoot(indices[0], first)
@@ -238,12 +245,15 @@ def run_bench(
     if uncompensated is not None:
         row = uncompensated.result(Method(UNCOMPENSATED, "none", lambda a, b: a))
         results.append({**row, **{k: None for k in KEYS if k not in ("pixels", "images")}, "ms_per_pair": None})
-    return {
+    report = {
         "dataset": _dataset_info(reader, data, len(indices)),
         "reference_model": None if reference is None else str(reference),
         "results": results,
         "versus_baselines": versus_baselines(results),
     }
+    if loop is not None and photometric:
+        report["photometric_response"] = {"mode": response, **(loop.fits if response == "measured" else {})}
+    return report
 
 
 def _check_options(refine: str, batch_size: int, track: bool, compensation: bool, photometric: bool) -> None:

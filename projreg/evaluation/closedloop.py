@@ -21,7 +21,8 @@ the region; PSNR is over the region's pixels and channels (peak 255). Per row: m
 
 With ``photometric``, each row also gets ``geo_*`` (the camera's view of the geometric compensation)
 and ``photo_*`` (geometric + photometric, :mod:`projreg.inference.radiometric`, calibrated from the camera's
-views of a white and a black projection of the same scene) against the **desired view** (the content
+views of a white and a black projection of the same scene, with the devices' response measured from its
+views of grey levels or an assumed gamma: :class:`ClosedLoop`) against the **desired view** (the content
 spanning the camera frame) up to one global brightness and contrast per channel
 (:func:`desired_scores`): PSNR, SSIM and the mean CIEDE2000 colour difference, over the same region.
 
@@ -41,6 +42,8 @@ from skimage.metrics import structural_similarity
 
 from projsynth.dataset.rerender import Rerenderer, View
 from projsynth.errors import ProjsynthError
+from projsynth.structured.patterns import make_set
+from projsynth.structured.response import Response, fit_response
 
 from ..errors import ProjregError
 from ..inference.compensate import compensate, lands_in_frame, prewarp
@@ -50,13 +53,22 @@ from ..prediction import Prediction, as_prediction
 UNCOMPENSATED = "uncompensated"
 REGION_ERODE_PX = 2
 WHITE_LEVEL = 192  # the calibration's "white": the simulated camera has no exposure to lower, so white would clip
+RESPONSES = ("gamma", "measured")  # where the photometric model's device curves come from (ClosedLoop)
 
 
 class ClosedLoop:
     """Per sample: photograph each method's compensation and score it against the ground truth's
-    (and, with ``photometric``, against the desired view: geometric only vs geometric + photometric)."""
+    (and, with ``photometric``, against the desired view: geometric only vs geometric + photometric).
 
-    def __init__(self, data: Path, photometric: bool = False):
+    ``response``: how the photometric model gets the devices' curves (``RESPONSES``): ``gamma``, assumed
+    (the simulated devices' own: docs/design.md, "The devices' response, measured"), or ``measured``, fitted
+    per sample from the camera's views of the grey levels of ``projsynth patterns --kind response``
+    (:mod:`projsynth.structured.response`, with the assumed gamma where the views do not identify the
+    camera's exponent; where the fit refuses them, the assumption alone; both counted in :attr:`fits`)."""
+
+    def __init__(self, data: Path, photometric: bool = False, response: str = "gamma"):
+        if response not in RESPONSES:
+            raise ProjregError(f"--response must be one of {', '.join(RESPONSES)}, got {response!r}")
         try:
             self.rerenderer = Rerenderer(Path(data))
         except ProjsynthError as e:
@@ -64,11 +76,13 @@ class ClosedLoop:
         # the devices' gamma, as a user calibrating that rig would set it: the paper's blend is linear,
         # the physical model has projector gamma 2.2 and a camera response of 2.0-2.4
         self.photometric, self.gamma = photometric, 1.0 if self.rerenderer.plan.blend == "paper" else 2.2
+        self.response = response
+        self.fits = {"fitted": 0, "identified": 0, "refused": 0}  # measured: the per-sample response fits
         self.last_views: dict[str, np.ndarray] = {}  # the last sample's pictures, for contact sheets
 
-    def _views(self, k: int, images: list[np.ndarray]) -> list[View]:
+    def _views(self, k: int, images: list[np.ndarray], same_noise: bool = True) -> list[View]:
         try:
-            return self.rerenderer.views(k, images)
+            return self.rerenderer.views(k, images, same_noise)
         except ProjsynthError as e:
             raise ProjregError(f"--compensation: sample {k}: {e}") from e
 
@@ -112,7 +126,8 @@ class ClosedLoop:
         if self.photometric:
             wanted = cv2.resize(content, camera[::-1], interpolation=cv2.INTER_AREA)
             white, black = self._views(k, [np.full_like(content, WHITE_LEVEL), np.zeros_like(content)])
-            model = calibrate(white.image, black.image, self.gamma, WHITE_LEVEL / 255)
+            curves = self._measured(k, content.shape) if self.response == "measured" else None
+            model = calibrate(white.image, black.image, self.gamma, WHITE_LEVEL / 255, response=curves)
             needed, _ = solve(wanted, model, region)
             photo = self._views(k, [warp(needed, p) for p in preds.values()])
             corrected = {f"{n}+photometric": v.image for n, v in zip(preds, photo, strict=True)}
@@ -122,6 +137,24 @@ class ClosedLoop:
                 none = dict.fromkeys(("photo_psnr", "photo_ssim", "photo_de2000"))
                 out[name].update(none if ph is None else desired_scores(ph.image, wanted, region, self.gamma, "photo"))
         return out
+
+    def _measured(self, k: int, shape: tuple[int, ...]) -> Response | None:
+        """Sample ``k``'s devices' curves fitted to the camera's views of the grey levels (full white
+        included: the fit leaves clipped samples out), each with a noise draw of its own, as photos shot one
+        after another (one shared draw would be a per-pixel offset that mimics a linear camera); None where
+        the fit refuses the views."""
+        steps = make_set("response", shape[:2])
+        grey = [np.repeat(img[..., None], 3, axis=2) for img in steps.images()]
+        views = self._views(k, grey, same_noise=False)
+        photos = np.stack([v.image for v in views]).astype(np.float32) / np.float32(255)
+        try:
+            curves = fit_response(steps.params["levels"], photos, fallback=self.gamma)
+        except ProjsynthError:
+            self.fits["refused"] += 1
+            return None
+        self.fits["fitted"] += 1
+        self.fits["identified"] += int(curves.identified)
+        return curves
 
 
 def surface_shown(pred: Prediction, valid: np.ndarray, camera: tuple[int, int]) -> float | None:

@@ -26,6 +26,7 @@ import numpy as np
 
 from projsynth.errors import ProjsynthError
 from projsynth.flow.formats import read_flow_file
+from projsynth.structured.response import read_response
 from projsynth.utils.images import load_image
 
 from ..errors import ProjregError
@@ -190,6 +191,7 @@ def compensate_files(
     gamma: float = 2.2,
     coverage: str = "complete",
     min_confidence: float = 0.0,
+    response: Path | None = None,
 ) -> dict:
     """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG).
 
@@ -201,12 +203,14 @@ def compensate_files(
 
     ``photometric``: the camera's photos ``(white, black)`` of a full-white and a full-black
     projection; the desired view is then also corrected for the surface's colour and light
-    (:mod:`projreg.inference.radiometric`) in the photos' frame before the geometric pre-warp.
+    (:mod:`projreg.inference.radiometric`) in the photos' frame before the geometric pre-warp, with the
+    devices' curves of the ``response`` file (``projsynth response``), or ``gamma`` for both without one.
     ``coverage`` and ``min_confidence``: which projector pixels show content (:func:`shown_pixels`).
     """
     require_suffix(Path(out), ".png", "--out")
     inputs = [("--content", Path(content)), ("--flow", Path(flow))]
     inputs += [] if photometric is None else [("--white", Path(photometric[0])), ("--black", Path(photometric[1]))]
+    inputs += [] if response is None else [("--response", Path(response))]
     guard_outputs([("--out", Path(out))], inputs)
     if not 0 <= fill <= 255:
         raise ProjregError(f"--fill: must be in 0..255, got {fill}")
@@ -214,6 +218,7 @@ def compensate_files(
         image = load_image(Path(content))
         f = read_flow_file(Path(flow))
         photos = None if photometric is None else [load_image(Path(p)) for p in photometric]
+        curves = None if response is None else read_response(Path(response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
     registered = f.header.get("registered", "yes") != "no"  # ground truth and other tools' flows say nothing
@@ -226,7 +231,7 @@ def compensate_files(
     camera = stated or (photos[0].shape[:2] if photos is not None else f.valid.shape)
     check_aspect(image.shape, camera)
     if photos is not None:
-        model = calibrate(photos[0], photos[1], gamma)
+        model = calibrate(photos[0], photos[1], gamma, response=curves)
         if camera != photos[0].shape[:2]:
             raise ProjregError(
                 f"--white {photometric[0]}: {photos[0].shape[1]}x{photos[0].shape[0]} px, but the flow's camera "

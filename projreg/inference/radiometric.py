@@ -1,10 +1,14 @@
 """Photometric (radiometric) compensation: what the projector must show so the camera sees the colours
 wanted on a textured, coloured or partly lit surface.
 
-Model, per camera pixel and channel, in linear light (camera values through ``gamma``, projector
-values through ``gamma`` too; 2.2 by default, 1 for a linear device such as the paper's blend):
+Model, per camera pixel and channel, in the camera's linear light:
 
-    camera_lin = offset + gain * projector_lin
+    F^-1(camera) = offset + gain * g(projector)
+
+with ``F^-1`` the camera's response read backwards and ``g`` the projector's (code value -> light, 0 at
+black, 1 at white): either **measured** from photos of grey levels (a
+:class:`projsynth.structured.response.Response`, ``projsynth response``), or **assumed**, ``x^gamma`` for
+both devices (2.2 by default, 1 for a linear device such as the paper's blend).
 
 ``offset`` is the photo of a full-black projection (ambient light on the surface's own texture, the
 projector's black level), ``offset + gain`` the photo of a full-white one: two shots calibrate every
@@ -14,8 +18,8 @@ wanted view is therefore mapped, **globally**, to ``floor + s * wanted_lin``, wi
 contrast ``s`` chosen (:func:`best_mapping`) so that the camera's view, read back to the wanted view's
 scale, is closest to it: a high floor hides the surface's texture but leaves little contrast (and
 noise grows), a large contrast clips on dark albedo. A per-pixel scale would reproduce the surface's
-own pattern instead of hiding it. The projector value is ``((target - offset) / gain)^(1 / gamma)``,
-clipped to [0, 1].
+own pattern instead of hiding it. The projector value is ``g^-1((target - offset) / gain)``, the
+light clipped to [0, 1].
 
 Convention: images ``(H, W, 3)`` uint8 RGB in the **camera** frame; the result is the projector
 value each camera pixel needs, still in the camera frame: the geometric pre-warp
@@ -27,6 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from projsynth.structured.response import Response
 
 from ..errors import ProjregError
 
@@ -40,11 +46,12 @@ CLIPPED_SHARE = 0.05  # white photo saturated on more of the frame than this: a 
 
 @dataclass(frozen=True)
 class Radiometry:
-    """Per camera pixel and channel: ``offset`` and ``gain`` ``(Hc, Wc, 3)`` in linear light, and ``gamma``."""
+    """Per camera pixel and channel: ``offset`` and ``gain`` ``(Hc, Wc, 3)`` in the camera's linear light, and
+    the devices' ``curves`` (measured, or :meth:`Response.from_gamma`)."""
 
     offset: np.ndarray
     gain: np.ndarray
-    gamma: float
+    curves: Response
     clipped: float = 0.0  # share of camera pixels where the white photo saturates (gain underestimated)
 
 
@@ -52,10 +59,18 @@ def to_linear(image: np.ndarray, gamma: float) -> np.ndarray:
     return (image.astype(np.float32) / np.float32(255)) ** np.float32(gamma)
 
 
-def calibrate(white: np.ndarray, black: np.ndarray, gamma: float = 2.2, level: float = 1.0) -> Radiometry:
+def calibrate(
+    white: np.ndarray,
+    black: np.ndarray,
+    gamma: float = 2.2,
+    level: float = 1.0,
+    response: Response | None = None,
+) -> Radiometry:
     """The per-pixel model from the camera's photos of a white (projector value ``level`` in (0, 1],
     full white by default) and a full-black projection. A white photo must not clip: where the camera
     saturates, the gain is underestimated (lower the exposure, or ``level``).
+
+    ``response``: the devices' measured curves, which replace ``gamma``; None: ``x^gamma`` for both devices.
 
     Raises:
         ProjregError: the photos differ in size or ``gamma`` is outside (0.5, 4).
@@ -73,9 +88,11 @@ def calibrate(white: np.ndarray, black: np.ndarray, gamma: float = 2.2, level: f
             f"--white is darker than --black on {darker:.0%} of the frame: are the two photos swapped? "
             "--white is the camera's photo of a full-white projection"
         )
-    offset = to_linear(black, gamma)
-    gain = np.maximum(to_linear(white, gamma) - offset, 0) / np.float32(level**gamma)
-    return Radiometry(offset, gain, gamma, clipped=float(np.mean((white == 255).any(axis=2))))
+    curves = Response.from_gamma(gamma) if response is None else response
+    offset = curves.camera_linear(black)
+    shown = [np.interp(255 * level, np.arange(256), curves.projector[c]) for c in range(3)]  # g(level)
+    gain = np.maximum(curves.camera_linear(white) - offset, 0) / np.asarray(shown, np.float32)
+    return Radiometry(offset, gain, curves, clipped=float(np.mean((white == 255).any(axis=2))))
 
 
 def solve(wanted: np.ndarray, model: Radiometry, region: np.ndarray | None = None) -> tuple[np.ndarray, float]:
@@ -99,11 +116,11 @@ def solve(wanted: np.ndarray, model: Radiometry, region: np.ndarray | None = Non
     region = lit if region is None else region & lit
     if not region.any():
         raise ProjregError("the white and black photos do not differ anywhere: the projector lights nothing")
-    wanted_lin = to_linear(wanted, model.gamma)
+    wanted_lin = model.curves.camera_linear(wanted)
     floor, scale = best_mapping(wanted_lin[region], model.offset[region], model.gain[region])
     need = (floor + scale * wanted_lin - model.offset) / np.maximum(model.gain, MIN_GAIN)
-    need = np.where(model.gain > MIN_GAIN, np.clip(need, 0, 1), 0) ** np.float32(1 / model.gamma)
-    return np.clip(np.rint(255 * need), 0, 255).astype(np.uint8), scale
+    need = np.where(model.gain > MIN_GAIN, np.clip(need, 0, 1), 0)
+    return model.curves.projector_codes(need), scale
 
 
 def best_mapping(wanted: np.ndarray, offset: np.ndarray, gain: np.ndarray) -> tuple[np.ndarray, float]:

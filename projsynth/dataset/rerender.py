@@ -85,11 +85,16 @@ class Rerenderer:
             self._images = (pair, source_images(self.plan, pair))
         return self._images[1]
 
-    def views(self, k: int, images: list[np.ndarray], *, noise: bool = True) -> list[View]:
+    def views(self, k: int, images: list[np.ndarray], same_noise: bool = True, *, noise: bool = True) -> list[View]:
         """Sample ``k``'s camera photo of each projector image (``(H, W, 3)`` uint8, the projector's
         frame), every one with the sample's own transparency field and noise stream (and, for a frame
-        of a sequence, its exposure: the motion blur); ``noise=False``: without the sensor's random
-        noise (:func:`~projsynth.sim.photometric.noiseless`, photos averaged over many frames)."""
+        of a sequence, its exposure: the motion blur).
+
+        ``same_noise``: every photo with the stored photo's noise draw, so that two views differ only by
+        what was projected; False: each with a draw of its own (the stream continued, image after
+        image), as photos shot one after another are, e.g. the grey levels of a response measurement.
+        ``noise=False``: without the sensor's random noise (:func:`~projsynth.sim.photometric.noiseless`,
+        photos averaged over many frames)."""
         s = sample_scene(self.plan, k, self._sources(k))
         photometry = s.photometry if noise else noiseless(s.photometry)
         alpha = alpha_field(s.projected.shape[:2], s.photometry["alpha"], s.photometry["alpha_var"], s.rng)
@@ -103,7 +108,8 @@ class Rerenderer:
         for image in images:
             if image.shape != s.projected.shape:
                 raise ProjsynthError(f"a projector image of shape {image.shape} for a {s.projected.shape} projector")
-            stream.bit_generator.state = after_alpha  # the same noise for every image
+            if same_noise:
+                stream.bit_generator.state = after_alpha  # the same noise for every image
             photo = expose(image, alpha, views, s.background, photometry, self.plan.blend, stream)
             out.append(View(photo, lit, source))
         return out

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,10 +64,13 @@ class Correspondence:
     stats: dict
 
 
-def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[Path]]:
+def load_captures(
+    patterns: PatternSet, folder: Path, loader: Callable[[Path], np.ndarray] = load_gray
+) -> tuple[np.ndarray, list[Path]]:
     """The photos of ``patterns`` in ``folder`` as ``(N, Hc, Wc)`` float32 grey in [0, 1], and their files.
 
-    Photos carry the pattern names with any image extension (8- or 16-bit, colour or grey).
+    Photos carry the pattern names with any image extension (8- or 16-bit, colour or grey). ``loader``
+    reads one photo (``load_rgb``: ``(N, Hc, Wc, 3)``, the channels apart).
 
     Raises:
         ProjsynthError: a photo is missing, an extra image is present, a photo is unreadable, or the
@@ -99,7 +103,7 @@ def load_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[
                 f"({', '.join(p.name for p in found[name])}); keep one"
             )
         files.append(found[name][0])
-    return _read_photos(files), files
+    return _read_photos(files, loader), files
 
 
 def load_ordered_captures(patterns: PatternSet, folder: Path) -> tuple[np.ndarray, list[Path]]:
@@ -140,12 +144,13 @@ def _natural_key(path: Path) -> list:
     return [(0, int(t), "") if t.isdigit() else (1, 0, t.lower()) for t in re.split(r"(\d+)", path.name) if t]
 
 
-def _read_photos(files: list[Path]) -> np.ndarray:
-    """``(N, Hc, Wc)`` float32 grey of ``files``; a photo of another size than the first is an error."""
-    images = [load_gray(files[0])]
+def _read_photos(files: list[Path], loader: Callable[[Path], np.ndarray] = load_gray) -> np.ndarray:
+    """``(N, Hc, Wc)`` float32 grey of ``files`` (or what ``loader`` reads); a photo of another size than the
+    first is an error."""
+    images = [loader(files[0])]
     for f in files[1:]:
-        img = load_gray(f)
-        if img.shape != images[0].shape:
+        img = loader(f)
+        if img.shape[:2] != images[0].shape[:2]:
             raise ProjsynthError(
                 f"{f}: {img.shape[1]}x{img.shape[0]} px, but {files[0].name} is "
                 f"{images[0].shape[1]}x{images[0].shape[0]}; all photos must come from one camera "
@@ -282,6 +287,8 @@ def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:
     """The correspondence of ``patterns`` from their photos ``(N, Hc, Wc)`` (:func:`load_captures`)."""
     if photos.shape[0] != len(patterns.names):
         raise ProjsynthError(f"{photos.shape[0]} photos for {len(patterns.names)} patterns")
+    if patterns.kind == "response":
+        raise ProjsynthError("grey levels measure the devices' response, not a correspondence: `projsynth response`")
     stack = {name.split("-", 1)[1]: img for name, img in zip(patterns.names, photos, strict=True)}
     if patterns.kind == "dots":
         flow, valid, stats = decode_dots(patterns, stack)

@@ -20,6 +20,10 @@ Two kinds (docs/real-rig.md):
   most significant down, the pattern then its inverse; the same for the rows; then a white and a black
   image (OpenCV's ``getImagesForShadowMasks``, appended in that order by its capture sample). No
   fringes: the decoder finds sub-pixel positions from where each pattern and its inverse cross.
+* ``response``: ``levels`` uniform grey frames, the same value on every pixel and channel, at code values
+  ``round(255 k / (levels - 1))`` from black to white (17 by default: 0, 16, 32, ..., 239, 255). Their photos
+  measure the camera's and the projector's response curves (:mod:`projsynth.structured.response`), not a
+  correspondence.
 
 Convention: images ``(H, W)`` uint8 grey; x right, y down, pixel centres at integers. Pattern names
 are ``NN-<name>`` with ``NN`` the position in the projection order; files are ``NN-<name>.png``.
@@ -41,11 +45,14 @@ from ..utils.images import png_bytes
 
 PATTERN_FORMAT = 1
 PATTERNS_FILE = "patterns.json"
-KINDS = ("graycode", "dots", "opencv-graycode")
+KINDS = ("graycode", "dots", "opencv-graycode", "response")
 DEFAULT_PERIOD, DEFAULT_SHIFTS, DEFAULT_GRID = 16, 8, (20, 20)
 MIN_PERIOD, MAX_PERIOD = 8, 1024  # fringe period, projector px
 MIN_SHIFTS, MAX_SHIFTS = 3, 64  # phase shifts per axis (each one photo)
 MIN_GRID, MAX_GRID = 2, 256  # dots per side
+# grey levels of the response set: 17 steps 16 code values apart sample a display's curve finely enough for
+# the fit's interpolation (docs/design.md, "The devices' response, measured"); every code value at most
+DEFAULT_LEVELS, MIN_LEVELS, MAX_LEVELS = 17, 5, 256
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,8 @@ class PatternSet:
         """The patterns as ``(H, W)`` uint8 images, in ``names`` order."""
         if self.kind == "opencv-graycode":
             return opencv_images(self)
+        if self.kind == "response":
+            return [np.full(self.size, v, np.uint8) for v in self.params["levels"]]
         return graycode_images(self) if self.kind == "graycode" else dot_images(self)
 
 
@@ -146,6 +155,15 @@ def opencv_set(size: tuple[int, int]) -> PatternSet:
     return PatternSet("opencv-graycode", (h, w), _numbered(names), {"bits_x": bits["col"], "bits_y": bits["row"]})
 
 
+def response_set(size: tuple[int, int], levels: int = DEFAULT_LEVELS, source: str | None = None) -> PatternSet:
+    """``levels`` uniform grey frames from black to white for an ``H x W`` projector (module docstring);
+    names ``NN-levelVVV`` with ``VVV`` the code value."""
+    if not MIN_LEVELS <= levels <= MAX_LEVELS:
+        raise ProjsynthError(f"{_name('levels', source)}: must be in {MIN_LEVELS}..{MAX_LEVELS}, got {levels}")
+    values = [int(v) for v in np.rint(np.linspace(0, 255, levels))]
+    return PatternSet("response", tuple(size), _numbered([f"level{v:03d}" for v in values]), {"levels": values})
+
+
 def _name(key: str, source: str | None) -> str:
     """How an error names a setting: the option (``--period``) or the file's key (``F: "period"``)."""
     return f"--{key}" if source is None else f'{source}: "{key}"'
@@ -218,23 +236,24 @@ def make_set(
     grid: tuple[int, int] | None = None,
     period: int | None = None,
     shifts: int | None = None,
+    levels: int | None = None,
 ) -> PatternSet:
-    """A pattern set by kind name (``KINDS``); a setting of the other kind is refused, not ignored."""
+    """A pattern set by kind name (``KINDS``); a setting of another kind is refused, not ignored."""
+    given = {"--grid": grid, "--period": period, "--shifts": shifts, "--levels": levels}
+    own = {"graycode": ("--period", "--shifts"), "dots": ("--grid",), "opencv-graycode": (), "response": ("--levels",)}
+    if kind not in own:
+        raise ProjsynthError(f"--kind: {kind!r} is not one of {', '.join(KINDS)}")
+    for option, value in given.items():
+        if value is not None and option not in own[kind]:
+            owner = next(k for k, options in own.items() if option in options)
+            raise ProjsynthError(f"{option}: sets --kind {owner}, not {kind}; drop it")
     if kind == "graycode":
-        if grid is not None:
-            raise ProjsynthError("--grid: sets the dots of --kind dots; drop it for graycode")
         return graycode_set(size, period or DEFAULT_PERIOD, DEFAULT_SHIFTS if shifts is None else shifts)
     if kind == "dots":
-        for option, value in (("--period", period), ("--shifts", shifts)):
-            if value is not None:
-                raise ProjsynthError(f"{option}: sets the fringes of --kind graycode; drop it for dots")
         return dot_set(size, grid or DEFAULT_GRID)
-    if kind == "opencv-graycode":
-        for option, value in (("--grid", grid), ("--period", period), ("--shifts", shifts)):
-            if value is not None:
-                raise ProjsynthError(f"{option}: OpenCV's layout has no such setting; drop it for opencv-graycode")
-        return opencv_set(size)
-    raise ProjsynthError(f"--kind: {kind!r} is not one of {', '.join(KINDS)}")
+    if kind == "response":
+        return response_set(size, DEFAULT_LEVELS if levels is None else levels)
+    return opencv_set(size)
 
 
 def write_patterns(patterns: PatternSet, out: Path) -> list[Path]:
@@ -277,6 +296,10 @@ def read_patterns(folder: Path) -> PatternSet:
             )
         elif d["kind"] == "opencv-graycode":
             expected = opencv_set(size)
+        elif d["kind"] == "response":
+            values = params.get("levels")
+            count = len(values) if isinstance(values, list) else _int(values, "levels")
+            expected = response_set(size, count, source=str(path))
         else:
             expected = dot_set(size, _ints(params.get("grid"), "grid"), source=str(path))
     except ValueError as e:

@@ -37,8 +37,7 @@ def list_images(folder: Path, option: str) -> list[Path]:
     """
     folder = Path(folder)
     if not folder.exists():
-        raise ProjsynthError(f"{option} {folder}: folder does not exist; "
-                             f"point {option} at a folder of images")
+        raise ProjsynthError(f"{option} {folder}: folder does not exist; point {option} at a folder of images")
     if not folder.is_dir():
         raise ProjsynthError(f"{option} {folder}: not a folder; point {option} at a folder of images")
     found, seen = [], set()
@@ -49,11 +48,12 @@ def list_images(folder: Path, option: str) -> list[Path]:
             continue
         seen.add(real)
         dirs[:] = [d for d in dirs if not d.startswith(".")]
-        found += [Path(root, f) for f in files
-                  if not f.startswith(".") and f.lower().endswith(IMAGE_EXTENSIONS)]
+        found += [Path(root, f) for f in files if not f.startswith(".") and f.lower().endswith(IMAGE_EXTENSIONS)]
     if not found:
-        raise ProjsynthError(f"{option} {folder}: no images ({', '.join(IMAGE_EXTENSIONS)}) found; "
-                             f"add images or point {option} elsewhere")
+        raise ProjsynthError(
+            f"{option} {folder}: no images ({', '.join(IMAGE_EXTENSIONS)}) found; "
+            f"add images or point {option} elsewhere"
+        )
     return sorted(found, key=lambda p: p.relative_to(folder).as_posix())
 
 
@@ -85,14 +85,24 @@ def load_gray(path: Path) -> np.ndarray:
     8-bit divided by 255, 16-bit by 65535, float clipped to [0, 1] (NaN -> 0); colour is the mean of
     the three channels; alpha is dropped. Errors as :func:`load_image`.
     """
-    image = read_image(path)
+    image = _full_scale(read_image(path))
+    return image[..., 0] if image.shape[2] < 3 else image.mean(axis=2, dtype=np.float32)
+
+
+def load_rgb(path: Path) -> np.ndarray:
+    """Read an image file as ``H x W x 3`` float32 RGB in [0, 1] at its full bit depth (photos whose
+    channels are measured apart); grey is replicated, alpha dropped, values as :func:`load_gray`'s."""
+    image = _full_scale(read_image(path))
+    return np.repeat(image[..., :1], 3, axis=2) if image.shape[2] < 3 else np.ascontiguousarray(image[..., 2::-1])
+
+
+def _full_scale(image: np.ndarray) -> np.ndarray:
+    """The first three channels (BGR, or fewer) of a decoded image as float32 in [0, 1] of full scale."""
     if image.dtype == np.uint8:
-        gray = image[..., :3].astype(np.float32) / np.float32(255)
-    elif image.dtype == np.uint16:
-        gray = image[..., :3].astype(np.float32) / np.float32(65535)
-    else:
-        gray = np.clip(np.nan_to_num(image[..., :3].astype(np.float32), nan=0.0), 0, 1)
-    return gray[..., 0] if image.shape[2] < 3 else gray.mean(axis=2, dtype=np.float32)
+        return image[..., :3].astype(np.float32) / np.float32(255)
+    if image.dtype == np.uint16:
+        return image[..., :3].astype(np.float32) / np.float32(65535)
+    return np.clip(np.nan_to_num(image[..., :3].astype(np.float32), nan=0.0), 0, 1)
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -118,8 +128,9 @@ def read_image(path: Path) -> np.ndarray:
     if image is None or image.size == 0:
         raise ProjsynthError(f"{path}: cannot read image (not a complete image file); remove it or fix it")
     if image.dtype not in (np.uint8, np.uint16) and image.dtype.kind != "f":
-        raise ProjsynthError(f"{path}: cannot read image (unsupported sample type {image.dtype}); "
-                             "convert it to 8/16-bit or float")
+        raise ProjsynthError(
+            f"{path}: cannot read image (unsupported sample type {image.dtype}); convert it to 8/16-bit or float"
+        )
     if image.ndim == 2:
         image = image[..., None]
     if image.shape[2] > 4:

@@ -1,5 +1,6 @@
 """The in-memory API gives what the command line writes, pair by pair, batch or not, any camera size."""
 
+import json
 from dataclasses import replace
 
 import cv2
@@ -13,6 +14,7 @@ from projreg.cli import app
 from projreg.inference.compensate import compensate as compensate_arrays
 from projreg.inference.photos import normalise_capture
 from projsynth.flow.formats import read_flow_exr, read_flow_file
+from projsynth.structured.response import Response, projector_curve, response_record
 
 
 def _png(path, rgb):
@@ -67,6 +69,24 @@ def test_compensate_is_the_pre_warp_of_the_whole_flow_or_of_the_claim(pairs, tin
     np.testing.assert_array_equal(unregistered, cv2.resize(wanted, img0.shape[1::-1], interpolation=cv2.INTER_AREA))
     with pytest.raises(ProjregError, match="both the white and the black"):
         compensate(wanted, reg, white=img1)
+
+
+def test_compensate_takes_the_measured_response_as_an_object_or_a_file(pairs, tiny_ckpt, tmp_path):
+    img0, img1 = pairs[1]
+    reg = Registrar(tiny_ckpt, device="cpu").register(img0, img1)
+    wanted, white, black = np.full_like(img1, 120), np.full_like(img1, 230), np.full_like(img1, 20)
+    levels = (0, 64, 128, 191, 255)
+    points = np.tile((np.array(levels) / 255) ** 2.6, (3, 1))
+    curves = Response(1.8, projector_curve(levels, points), True, (1.7, 1.9), levels, points, 1.0, 100)
+    (tmp_path / "r.json").write_text(json.dumps(response_record(curves)))
+    photos = {"white": white, "black": black}
+    by_object = compensate(wanted, reg, **photos, response=curves)
+    np.testing.assert_array_equal(compensate(wanted, reg, **photos, response=tmp_path / "r.json"), by_object)
+    assert not np.array_equal(by_object, compensate(wanted, reg, **photos))  # gamma 2.2 assumed: another image
+    with pytest.raises(ProjregError, match="give one of the two"):
+        compensate(wanted, reg, **photos, response=curves, gamma=2.2)
+    with pytest.raises(ProjregError, match="give the white and black photos"):
+        compensate(wanted, reg, response=curves)
 
 
 def test_the_network_alone_claims_everything_and_bad_input_is_one_line(pairs, tiny_ckpt):

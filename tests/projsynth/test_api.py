@@ -36,3 +36,22 @@ def test_bad_arrays_are_refused_with_one_line():
         projsynth.decode_photos(patterns, [p.astype(np.float64) for p in photos])
     exact = projsynth.decode_photos(patterns, photos)  # the projector seen by itself: zero flow
     assert exact.valid.mean() > 0.8 and np.abs(exact.flow[exact.valid]).max() < 0.05
+
+
+def test_the_device_response_is_fitted_in_memory_as_the_command_fits_files():
+    from projsynth.dataset.transforms import builtin_table
+    from projsynth.structured.capture import make_rig, shoot
+
+    patterns = projsynth.make_patterns("response", (48, 64), levels=9)
+    rig = make_rig(builtin_table(), 0, 2, (48, 64), (48, 64))
+    photos = [shoot(rig, img, 2, i) for i, img in enumerate(patterns.images())]  # uint8 RGB, as saved
+    curves = projsynth.fit_device_response(patterns, photos)
+    assert curves.levels == tuple(patterns.params["levels"]) and curves.projector.shape == (3, 256)
+    wide = [(p.astype(np.uint16) * 257) for p in photos]  # 16-bit photos: the same values at full scale
+    np.testing.assert_allclose(projsynth.fit_device_response(patterns, wide).projector, curves.projector, atol=1e-6)
+    with pytest.raises(ProjsynthError, match="8 photos for 9 grey levels"):
+        projsynth.fit_device_response(patterns, photos[1:])
+    with pytest.raises(ProjsynthError, match=r"expected uint8 or uint16 RGB \(H, W, 3\) images"):
+        projsynth.fit_device_response(patterns, [p[..., 0] for p in photos])
+    with pytest.raises(ProjsynthError, match="a dots set"):
+        projsynth.fit_device_response(projsynth.make_patterns("dots", (96, 128), grid=(4, 4)), photos)

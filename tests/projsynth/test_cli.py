@@ -2,15 +2,29 @@
 
 import json
 import re
+import shutil
 import subprocess
 import sys
 
 import pytest
 import typer
+from typer.testing import CliRunner
 
 from projsynth.cli import app
 
-COMMANDS = {"gen", "merge", "verify", "inspect", "export", "preview", "transforms", "patterns", "capture", "decode"}
+COMMANDS = {
+    "gen",
+    "merge",
+    "verify",
+    "inspect",
+    "export",
+    "preview",
+    "transforms",
+    "patterns",
+    "capture",
+    "decode",
+    "response",
+}
 SMALL = ["--pairs", "1", "--size", "48x64", "--transforms", "0-3", "--shard-size", "2"]  # 8 samples, 4 shards
 
 
@@ -292,3 +306,65 @@ def test_an_input_error_is_one_line_with_no_bar_before_it(cli, tmp_path):
         assert result.exit_code == 2
         assert result.stderr.count("\n") == 1 and "\r" not in result.stderr, repr(result.stderr)
         assert result.stderr.startswith(cli.ERROR_PREFIX) and "sample" not in result.stderr.split(":")[2]
+
+
+# --- response: the devices' curves from the virtual rig's photos of grey levels ------------------------
+
+
+@pytest.fixture(scope="module")
+def grey_shots(tmp_path_factory):
+    """A response set of 9 levels for a 48 x 64 projector and the virtual rig's photos of it (studio light)."""
+    root = tmp_path_factory.mktemp("response")
+    runner = CliRunner()
+    args = ["patterns", "--kind", "response", "--size", "48x64", "--levels", "9", "--out", str(root / "pat")]
+    assert runner.invoke(app, args).exit_code == 0
+    args = ["capture", "--patterns", str(root / "pat"), "--out", str(root / "cap"), "--transform", "0", "--seed", "2"]
+    assert runner.invoke(app, args).exit_code == 0
+    return root
+
+
+def test_response_is_fitted_from_the_virtual_rig_s_photos(cli, grey_shots, tmp_path):
+    out = tmp_path / "cal" / "response.json"
+    result = cli.run("response", "--patterns", grey_shots / "pat", "--captures", grey_shots / "cap", "--out", out)
+    assert result.exit_code == 0, result.stderr
+    assert "9 levels" in result.stderr and "camera exponent" in result.stderr
+    record = json.loads(out.read_text())
+    assert record["projector"]["levels"] == [0, 32, 64, 96, 128, 159, 191, 223, 255]
+    assert record["fit"]["photos"][0] == "00-level000.png" and record["fit"]["camera_size"] == [48, 64]
+
+
+def test_response_refusals_are_one_line_and_write_nothing(cli, grey_shots, tmp_path):
+    pat, cap = grey_shots / "pat", grey_shots / "cap"
+    dark = tmp_path / "dark"
+    shutil.copytree(cap, dark)
+    for photo in dark.glob("*.png"):  # the projector off: every photo the black one
+        shutil.copy(cap / "00-level000.png", photo)
+    cases = [
+        (["--captures", cap, "--out", tmp_path / "r.txt"], "one JSON file"),
+        (["--captures", tmp_path / "none", "--out", tmp_path / "r.json"], "--captures"),
+        (["--captures", dark, "--out", tmp_path / "r.json"], "barely differ"),
+        (["--captures", cap, "--out", cap / "00-level000.png"], "one JSON file"),
+    ]
+    for extra, needle in cases:
+        cli.assert_one_line_error(cli.run("response", "--patterns", pat, *extra), needle)
+    dots = tmp_path / "dots"
+    assert cli.run("patterns", "--kind", "dots", "--size", "48x64", "--grid", "4x4", "--out", dots).exit_code == 0
+    cli.assert_one_line_error(
+        cli.run("response", "--patterns", dots, "--captures", cap, "--out", tmp_path / "r.json"), "a dots set"
+    )
+    cli.assert_one_line_error(
+        cli.run("decode", "--patterns", pat, "--captures", cap, "--out", tmp_path / "d"), "projsynth response"
+    )
+    assert not (tmp_path / "r.json").exists() and not (tmp_path / "r.txt").exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--kind", "response", "--levels", "4"], "--levels: must be in 5..256"),
+        (["--kind", "graycode", "--levels", "9"], "--levels"),
+    ],
+)
+def test_patterns_levels_are_checked(cli, tmp_path, extra, needle):
+    cli.assert_one_line_error(cli.run("patterns", "--size", "48x64", "--out", tmp_path / "p", *extra), needle)
+    assert not (tmp_path / "p").exists()

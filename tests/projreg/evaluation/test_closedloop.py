@@ -109,3 +109,26 @@ def test_the_default_compensation_ignores_the_claim_and_the_claimed_only_one_is_
     assert scores["unregistered"]["comp_psnr"] == scores[UNCOMPENSATED]["comp_psnr"]
     assert scores["half"]["comp_shown"] == scores["whole"]["comp_shown"] == 1.0  # the truth lands in the frame
     assert scores["unregistered"]["comp_shown"] == 1.0
+
+
+def test_the_measured_response_calibrates_the_photometric_loop(small_physical, tiny_train):
+    """Per sample the camera's views of the grey levels are fitted; on the physical model (projector gamma
+    2.2, camera 2.0-2.4) the measured curves score as the assumed gamma does, within 0.3 dB, and the
+    report says where its curves came from."""
+    kwargs = {"baselines": ("dis-medium",), "compensation": True, "photometric": True}
+    measured = run_bench(small_physical, response="measured", **kwargs)
+    assumed = run_bench(small_physical, **kwargs)
+    assert assumed["photometric_response"] == {"mode": "gamma"}
+    fits = measured["photometric_response"]
+    assert fits["mode"] == "measured" and fits["fitted"] + fits["refused"] == 6 and fits["fitted"] >= 4
+    scores = measured["results"][0]["photo_psnr"], assumed["results"][0]["photo_psnr"]
+    assert abs(scores[0] - scores[1]) < 0.3, scores
+    paper = run_bench(tiny_train, limit=2, response="measured", **kwargs)["photometric_response"]
+    assert paper["fitted"] == 2  # the paper's blend is linear: exponent 1 where identified, else gamma 1 kept
+
+
+def test_response_needs_the_photometric_loop(tiny_train):
+    with pytest.raises(ProjregError, match="--response chooses the photometric model's device curves"):
+        run_bench(tiny_train, baselines=("dis-medium",), compensation=True, response="measured")
+    with pytest.raises(ProjregError, match="--response must be one of gamma, measured"):
+        run_bench(tiny_train, baselines=("dis-medium",), compensation=True, photometric=True, response="both")

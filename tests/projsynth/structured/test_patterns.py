@@ -76,3 +76,24 @@ def test_bad_pattern_options(cli, tmp_path, args, needle):
         base[k] = v
     result = cli.run("patterns", *[x for kv in base.items() for x in kv])
     cli.assert_one_line_error(result, needle)
+
+
+def test_the_response_set_is_uniform_grey_from_black_to_white_and_reads_back(tmp_path):
+    patterns = make_set("response", (32, 48), levels=9)
+    images = patterns.images()
+    assert patterns.params["levels"] == [0, 32, 64, 96, 128, 159, 191, 223, 255] and len(images) == 9
+    for name, img, level in zip(patterns.names, images, patterns.params["levels"], strict=True):
+        assert img.shape == (32, 48) and (img == level).all() and name.endswith(f"level{level:03d}")
+    assert len(make_set("response", (32, 48)).names) == 17  # the default
+    write_patterns(patterns, tmp_path)
+    assert read_patterns(tmp_path) == patterns
+    d = json.loads((tmp_path / PATTERNS_FILE).read_text())
+    d["parameters"]["levels"][4] = 127
+    (tmp_path / PATTERNS_FILE).write_text(json.dumps(d))
+    with pytest.raises(ProjsynthError, match="edited"):
+        read_patterns(tmp_path)
+    for bad in (4, 257):
+        with pytest.raises(ProjsynthError, match="--levels: must be in 5..256"):
+            make_set("response", (32, 48), levels=bad)
+    with pytest.raises(ProjsynthError, match="--levels: sets --kind response, not dots"):
+        make_set("dots", (240, 320), levels=9)
