@@ -16,9 +16,10 @@ import numpy as np
 
 from .dataset.plan import Sample, make_sample, resolve_plan
 from .dataset.shards import ShardReader
+from .dataset.transforms import builtin_table
 from .errors import ProjsynthError
-from .structured.decode import Correspondence, decode
-from .structured.patterns import PatternSet, make_set
+from .structured.decode import Correspondence, decode, require_in_projector
+from .structured.patterns import PatternSet, check_size, make_set
 from .structured.response import Response, fit_response
 
 
@@ -72,6 +73,10 @@ def render_pair(
             raise ProjsynthError(f"{name}: expected a uint8 RGB array (H, W, 3), got {image.dtype} {image.shape}")
     if projected.shape != background.shape:
         raise ProjsynthError(f"projected {projected.shape} and background {background.shape} differ in size")
+    check_size(tuple(projected.shape[:2]), "projected")
+    count = len(builtin_table().configs)
+    if not isinstance(transform, int | np.integer) or isinstance(transform, bool) or not 0 <= transform < count:
+        raise ProjsynthError(f"transform: expected one built-in transform id 0..{count - 1}, got {transform!r}")
     plan = resolve_plan(
         size=projected.shape[:2], seed=seed, split="test", pairs=1, transforms=str(transform), blend=blend
     )
@@ -101,8 +106,15 @@ def decode_photos(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Corresp
     """The camera's photos of ``patterns`` (uint8 or uint16, gray ``(Hc, Wc)`` or RGB, in projection order)
     decoded: ``flow`` and ``valid`` on the projector grid, ``stats``; as ``projsynth decode`` reads them
     from files (grey in [0, 1] at full bit depth, colour as the mean of the channels)."""
+    if isinstance(photos, np.ndarray) or not isinstance(photos, Sequence) or not photos:
+        raise ProjsynthError(
+            f"photos: expected a non-empty sequence of images, one per pattern, got {type(photos).__name__}"
+        )
     gray = [g if g.ndim == 2 else g[..., :3].mean(axis=-1) for g in _full_scale(photos, "photos")]
-    return decode(patterns, np.stack(gray))
+    result = decode(patterns, np.stack(gray))
+    if patterns.kind == "opencv-graycode":  # the check `projsynth decode --layout opencv` makes
+        require_in_projector(result, patterns, "patterns")
+    return result
 
 
 def _full_scale(photos: Sequence[np.ndarray], name: str, rgb: bool = False) -> list[np.ndarray]:
@@ -111,7 +123,8 @@ def _full_scale(photos: Sequence[np.ndarray], name: str, rgb: bool = False) -> l
     out = []
     for p in photos:
         p = np.asarray(p)
-        if p.dtype not in (np.uint8, np.uint16) or p.ndim not in (2, 3) or (rgb and p.shape[2:] != (3,)):
+        channels_ok = p.ndim == 2 or (p.ndim == 3 and p.shape[2] in (1, 3, 4))
+        if p.dtype not in (np.uint8, np.uint16) or not channels_ok or (rgb and p.shape[2:] != (3,)) or 0 in p.shape:
             kind = " RGB (H, W, 3)" if rgb else ""
             raise ProjsynthError(f"{name}: expected uint8 or uint16{kind} images, got {p.dtype} {p.shape}")
         out.append(p.astype(np.float32) / np.float32(np.iinfo(p.dtype).max))

@@ -198,7 +198,7 @@ def decode_folder(
         photos, files = load_ordered_captures(patterns, captures)
     result = decode(patterns, photos)
     if projector is not None:
-        _require_in_projector(result, patterns)
+        require_in_projector(result, patterns, "--projector")
     _require_decoded(result, patterns, photos, captures)
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
@@ -247,15 +247,16 @@ def _check_layout(layout: str, patterns_dir: Path | None, projector: tuple[int, 
         raise ProjsynthError("--patterns: give the folder written by `projsynth patterns` (or --layout opencv)")
 
 
-def _require_in_projector(result: Correspondence, patterns: PatternSet) -> None:
+def require_in_projector(result: Correspondence, patterns: PatternSet, option: str) -> None:
     """Refuse a projector size the codes contradict (above ``MAX_BEYOND`` of the lit camera pixels decode
     beyond it): most often width and height swapped, which leaves the image count unchanged."""
     beyond = result.stats["camera_pixels_beyond_projector"] / max(result.stats["camera_pixels_lit"], 1)
     if beyond > MAX_BEYOND:
         h, w = patterns.size
         raise ProjsynthError(
-            f"--projector {h}x{w}: {beyond:.0%} of the lit camera pixels decode to columns or rows beyond it; "
-            f"give the projector's height first (HxW: OpenCV's width=1024, height=768 is 768x1024)"
+            f"{option} {h}x{w}: {beyond:.0%} of the lit camera pixels decode to columns or rows beyond it; "
+            f"give the projector's height first (HxW: OpenCV's width=1024, height=768 is 768x1024), or, if the "
+            "size is right, check that the photos are of this pattern set and in its order"
         )
 
 

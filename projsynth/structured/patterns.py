@@ -247,8 +247,10 @@ def make_set(
         if value is not None and option not in own[kind]:
             owner = next(k for k, options in own.items() if option in options)
             raise ProjsynthError(f"{option}: sets --kind {owner}, not {kind}; drop it")
+    check_size(size, "--size")
     if kind == "graycode":
-        return graycode_set(size, period or DEFAULT_PERIOD, DEFAULT_SHIFTS if shifts is None else shifts)
+        period = DEFAULT_PERIOD if period is None else period
+        return graycode_set(size, period, DEFAULT_SHIFTS if shifts is None else shifts)
     if kind == "dots":
         return dot_set(size, grid or DEFAULT_GRID)
     if kind == "response":
@@ -256,15 +258,46 @@ def make_set(
     return opencv_set(size)
 
 
+def check_size(size: object, option: str) -> None:
+    """Refuse a projector size that is not two integers in ``MIN_SIZE..MAX_SIZE`` (as ``--size`` parses)."""
+    ok = isinstance(size, tuple | list) and len(size) == 2
+    ok = ok and all(isinstance(v, int | np.integer) and not isinstance(v, bool) for v in size)
+    if not ok or not all(MIN_SIZE <= v <= MAX_SIZE for v in size):
+        raise ProjsynthError(f"{option}: expected (height, width) in {MIN_SIZE}..{MAX_SIZE} per side, got {size!r}")
+
+
 def write_patterns(patterns: PatternSet, out: Path) -> list[Path]:
-    """Write the PNGs and ``patterns.json`` into ``out`` (created), all or nothing; the files written."""
+    """Write the PNGs and ``patterns.json`` into ``out`` (created), all or nothing; the files written.
+
+    A folder that already holds other files is refused unless it holds this very set (its
+    ``patterns.json`` the same): photos named after the patterns, the documented way to name them,
+    would otherwise be overwritten."""
     out = Path(out)
+    _require_free(out, patterns)
     images = zip(patterns.names, patterns.images(), strict=True)
     files = [(out / f"{name}.png", png_bytes(out / name, img)) for name, img in images]
     files.append((out / PATTERNS_FILE, (json.dumps(patterns.describe(), indent=1) + "\n").encode()))
     write_atomic_all(files, make_parents=True)
     remove_stale_temporaries(out, [f.name for f, _ in files])
     return [f for f, _ in files]
+
+
+def _require_free(out: Path, patterns: PatternSet) -> None:
+    """Refuse to write ``patterns`` into a folder that holds files of anything else (:func:`write_patterns`)."""
+    if not out.is_dir():
+        return
+    present = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    if not present:
+        return
+    try:
+        same = json.loads((out / PATTERNS_FILE).read_text()) == json.loads(json.dumps(patterns.describe()))
+    except (OSError, ValueError):
+        same = False
+    if not same:
+        raise ProjsynthError(
+            f"--out {out}: holds {len(present)} file(s) of something else (e.g. {present[0]}), which the patterns "
+            "would overwrite; give a new or empty folder (nothing was written)"
+        )
 
 
 def read_patterns(folder: Path) -> PatternSet:

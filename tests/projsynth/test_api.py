@@ -55,3 +55,41 @@ def test_the_device_response_is_fitted_in_memory_as_the_command_fits_files():
         projsynth.fit_device_response(patterns, [p[..., 0] for p in photos])
     with pytest.raises(ProjsynthError, match="a dots set"):
         projsynth.fit_device_response(projsynth.make_patterns("dots", (96, 128), grid=(4, 4)), photos)
+
+
+@pytest.mark.parametrize(
+    ("call", "says"),
+    [
+        (lambda: projsynth.make_patterns("graycode", (0, 80)), r"^--size: expected \(height, width\) in 32..4096"),
+        (lambda: projsynth.make_patterns("graycode", (-4, 80)), r"^--size: expected"),
+        (lambda: projsynth.make_patterns("dots", (4097, 64)), r"^--size: expected"),
+        (lambda: projsynth.make_patterns("opencv-graycode", (100000, 100000)), r"^--size: expected"),
+        (lambda: projsynth.make_patterns("graycode", (64, 80), period=0), r"^--period: must be a multiple of 4"),
+        (lambda: projsynth.render_pair(*[np.zeros((64, 80, 3), np.uint8)] * 2, "0-3"), r"^transform: expected one"),
+        (lambda: projsynth.render_pair(*[np.zeros((64, 80, 3), np.uint8)] * 2, 160), r"^transform: .* 0..159"),
+        (lambda: projsynth.render_pair(*[np.zeros((0, 0, 3), np.uint8)] * 2, 0), r"^projected: expected"),
+        (
+            lambda: projsynth.decode_photos(projsynth.make_patterns("graycode", (64, 80)), []),
+            r"^photos: expected a non",
+        ),
+        (
+            lambda: projsynth.decode_photos(
+                projsynth.make_patterns("graycode", (64, 80)), [np.zeros((8, 8, 0), np.uint8)]
+            ),
+            r"^photos: expected uint8 or uint16",
+        ),
+    ],
+)
+def test_sizes_ids_and_photos_are_refused_as_the_command_line_refuses_them(call, says):
+    with pytest.raises(ProjsynthError, match=says):
+        call()
+
+
+def test_opencv_photos_with_patterns_and_inverses_swapped_are_refused_as_decode_refuses_them():
+    patterns = projsynth.make_patterns("opencv-graycode", (96, 100))
+    photos = [np.ascontiguousarray(p) for p in patterns.images()]
+    assert projsynth.decode_photos(patterns, photos).valid.mean() > 0.5  # the patterns themselves decode
+    for i in range(0, len(photos) - 2, 2):  # every pattern swapped with its inverse (white and black last)
+        photos[i], photos[i + 1] = photos[i + 1], photos[i]
+    with pytest.raises(ProjsynthError, match=r"^patterns 96x100: .* beyond it; .* of this pattern set and in its"):
+        projsynth.decode_photos(patterns, photos)

@@ -368,3 +368,24 @@ def test_response_refusals_are_one_line_and_write_nothing(cli, grey_shots, tmp_p
 def test_patterns_levels_are_checked(cli, tmp_path, extra, needle):
     cli.assert_one_line_error(cli.run("patterns", "--size", "48x64", "--out", tmp_path / "p", *extra), needle)
     assert not (tmp_path / "p").exists()
+
+
+def test_patterns_period_zero_is_refused_not_replaced_by_the_default(cli, tmp_path):
+    cli.assert_one_line_error(
+        cli.run("patterns", "--kind", "graycode", "--size", "48x64", "--out", tmp_path / "p", "--period", "0"),
+        "--period: must be a multiple of 4 in 8..1024, got 0",
+    )
+    assert not (tmp_path / "p").exists()
+
+
+def test_patterns_refuse_a_folder_of_other_files_and_rewrite_their_own(cli, tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    (photos / "00-col6.png").write_bytes(b"a photo named after its pattern")
+    args = ("patterns", "--kind", "opencv-graycode", "--size", "48x64", "--out")
+    cli.assert_one_line_error(cli.run(*args, photos), "holds 1 file(s) of something else (e.g. 00-col6.png)")
+    assert (photos / "00-col6.png").read_bytes() == b"a photo named after its pattern"
+    assert cli.run(*args, tmp_path / "pat").exit_code == 0
+    assert cli.run(*args, tmp_path / "pat").exit_code == 0  # the same set again: rewritten, same bytes
+    other = cli.run("patterns", "--kind", "graycode", "--size", "48x64", "--out", tmp_path / "pat")
+    cli.assert_one_line_error(other, "of something else")

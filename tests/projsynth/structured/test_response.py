@@ -20,7 +20,7 @@ from projsynth.structured.response import (
     read_response,
 )
 
-LEVELS = tuple(make_set("response", (8, 8)).params["levels"])
+LEVELS = tuple(make_set("response", (32, 32)).params["levels"])
 CODES = np.arange(256) / 255
 
 
