@@ -86,13 +86,16 @@ class Registrar:
         *,
         white: np.ndarray | None = None,
         black: np.ndarray | None = None,
+        response: Response | str | Path | None = None,
     ) -> Registration:
         """The registration of one pair (module conventions). ``white`` and ``black``: the camera's photos
         of a full-white and a full-black projection, of the captured image's size; the captured image
         is then registered with the surface divided out (:mod:`projreg.inference.photos`; ``white``
-        alone: its colour, not the ambient light)."""
+        alone: its colour, not the ambient light); ``response``: the devices' measured curves (a
+        :class:`projsynth.structured.response.Response` or a ``projsynth response`` file) linearise them
+        instead of gamma 2.2."""
         pair = check_image("projected", projected), check_image("captured", captured)
-        return self.register_batch([pair], white=white, black=black)[0]
+        return self.register_batch([pair], white=white, black=black, response=response)[0]
 
     def register_batch(
         self,
@@ -101,6 +104,7 @@ class Registrar:
         *,
         white: np.ndarray | None = None,
         black: np.ndarray | None = None,
+        response: Response | str | Path | None = None,
     ) -> list[Registration]:
         """The registrations of several pairs, in order; the network runs on ``batch_size`` pairs of one
         size per call. ``white``, ``black``: as :meth:`register`, one pair of photos for every pair (a
@@ -108,7 +112,7 @@ class Registrar:
         if not _is_int(batch_size) or batch_size < 1:
             raise ProjregError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         pairs = _checked_pairs(pairs)
-        photos = rig_photos(white, black)
+        photos = rig_photos(white, black, _response(response))
         return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size, self.finer_side, photos)
 
     def track(
@@ -117,6 +121,7 @@ class Registrar:
         *,
         white: np.ndarray | None = None,
         black: np.ndarray | None = None,
+        response: Response | str | Path | None = None,
     ) -> Iterator[Registration]:
         """The registrations of a sequence's frames, in order: each frame refined from the previous one's
         flow, the network only for the first frame and where the track is lost (:mod:`projreg.inference.track`).
@@ -128,7 +133,7 @@ class Registrar:
             raise ProjregError(
                 f"frames: expected an iterable of (projected, captured) pairs, got {type(frames).__name__}"
             )
-        return self._track(frames, rig_photos(white, black))
+        return self._track(frames, rig_photos(white, black, _response(response)))
 
     def _track(self, frames: Iterable[tuple[np.ndarray, np.ndarray]], photos: Photos | None) -> Iterator[Registration]:
         """:meth:`track`'s generator, once its arguments are checked."""
@@ -158,6 +163,16 @@ class Registrar:
             yield Registration(
                 flow, claimed, pred.confidence, pred.registered, pred.reason, b.shape[:2], dict(timings), tracker.last
             )
+
+
+def _response(response: Response | str | Path | None) -> Response | None:
+    """A measured response given as itself or as the path of a ``projsynth response`` file."""
+    if not isinstance(response, str | os.PathLike):
+        return response
+    try:
+        return read_response(Path(response))
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
 
 
 def _is_int(value: object) -> bool:
@@ -215,11 +230,7 @@ def compensate(
         raise ProjregError("response and gamma set the photometric correction; give the white and black photos")
     if response is not None and gamma is not None:
         raise ProjregError("gamma is the assumption a measured response replaces; give one of the two")
-    if isinstance(response, str | Path):
-        try:
-            response = read_response(Path(response))
-        except ProjsynthError as e:
-            raise ProjregError(str(e)) from e
+    response = _response(response)
     if white is not None:
         model = calibrate(check_image("white", white), check_image("black", black), gamma or 2.2, response=response)
         if white.shape[:2] != tuple(camera):

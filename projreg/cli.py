@@ -14,6 +14,7 @@ import typer
 from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
 from projsynth.utils.cores import available_cores
 
+from .cli_options import Backend, Device, Fast, Precision, Quality, ResponseFile, resolve_quality
 from .errors import ProjregError
 from .refine.config import DEFAULT_QUALITY
 
@@ -263,23 +264,6 @@ def export(
     typer.echo(f"{out}: step {slim.get('step')}, {out.stat().st_size / 2**20:.2f} MiB", err=True)
 
 
-DEVICE_HELP = "cpu, cuda or cuda:N (default: cuda when available, else cpu)."
-PRECISION_HELP = "fp32, bf16 or fp16 (CUDA only) for the network's feature stages (docs/model.md)."
-BACKEND_HELP = (
-    "auto (onnxruntime for the reference model or an .onnx --model on the CPU in fp32 where it is installed, "
-    "else torch), torch (a checkpoint) or onnxruntime (a graph of `projreg export --onnx`, as --model)."
-)
-QUALITY_HELP = "fast, balanced or accurate: where the network runs and how far the refinement searches (docs/model.md)."
-FAST_HELP = "The same as --quality fast."
-
-
-def _quality(quality: str, fast: bool) -> str:
-    """``--quality``, with ``--fast`` as its alias for ``fast``."""
-    if fast and quality not in (DEFAULT_QUALITY, "fast"):
-        raise ProjregError(f"--fast is --quality fast; drop one of --fast and --quality {quality}")
-    return "fast" if fast else quality
-
-
 PHOTOS_HELP = (
     "Also each model as NAME+photos: on the capture divided by white and black photos rendered through each "
     "sample's scene (generated data)."
@@ -329,14 +313,14 @@ def bench(
         ),
     ] = None,
     limit: Annotated[int | None, typer.Option(help="Evaluate N samples spread over the dataset.")] = None,
-    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
-    precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
-    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="auto|torch|onnxruntime")] = "auto",
+    device: Device = None,
+    precision: Precision = "fp32",
+    backend: Backend = "auto",
     batch_size: Annotated[
         int, typer.Option(help="Samples per network call (pairs of one size are batched).", metavar="N")
     ] = 1,
-    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|balanced|accurate")] = DEFAULT_QUALITY,
-    fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
+    quality: Quality = DEFAULT_QUALITY,
+    fast: Fast = False,
     photos: Annotated[bool, typer.Option("--photos", help=PHOTOS_HELP)] = False,
     compensation: Annotated[bool, typer.Option("--compensation", help=COMPENSATION_HELP)] = False,
     photometric: Annotated[bool, typer.Option("--photometric", help=PHOTOMETRIC_HELP)] = False,
@@ -386,7 +370,7 @@ def bench(
                 device=device,
                 precision=precision,
                 backend=backend,
-                quality=_quality(quality, fast),
+                quality=resolve_quality(quality, fast),
                 compensation=compensation,
                 photometric=photometric,
                 response=response,
@@ -458,14 +442,15 @@ def predict(
             help="With --white: camera photo of a full-black projection (removes the ambient light).", metavar="IMG"
         ),
     ] = None,
-    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default=False, metavar="DEVICE")] = None,
-    precision: Annotated[str, typer.Option(help=PRECISION_HELP, metavar="fp32|bf16|fp16")] = "fp32",
-    backend: Annotated[str, typer.Option(help=BACKEND_HELP, metavar="auto|torch|onnxruntime")] = "auto",
+    response: ResponseFile = None,
+    device: Device = None,
+    precision: Precision = "fp32",
+    backend: Backend = "auto",
     batch_size: Annotated[
         int, typer.Option(help="Pairs per network call in folder mode (pairs of one size are batched).", metavar="N")
     ] = 1,
-    quality: Annotated[str, typer.Option(help=QUALITY_HELP, metavar="fast|balanced|accurate")] = DEFAULT_QUALITY,
-    fast: Annotated[bool, typer.Option("--fast", help=FAST_HELP)] = False,
+    quality: Quality = DEFAULT_QUALITY,
+    fast: Fast = False,
     quiet: Quiet = False,
 ) -> None:
     """Predict the projected -> captured flow of real image pairs (EXR, optional PNG)."""
@@ -486,12 +471,13 @@ def predict(
                 precision=precision,
                 backend=backend,
                 batch_size=batch_size,
-                quality=_quality(quality, fast),
+                quality=resolve_quality(quality, fast),
                 progress=bar.done,
                 max_flow=max_flow,
                 track=track,
                 white=white,
                 black=black,
+                response=response,
             )
     except ProjregError as e:
         raise fail("projreg", e) from None
@@ -519,12 +505,7 @@ def compensate(
     ] = False,
     white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
     black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
-    response: Annotated[
-        Path | None,
-        typer.Option(
-            help="The devices' curves measured by `projsynth response` (replaces --gamma).", metavar="FILE.json"
-        ),
-    ] = None,
+    response: ResponseFile = None,
     gamma: Annotated[
         float | None,
         typer.Option(

@@ -11,10 +11,13 @@ colour. So
 
 is the projected picture as the camera sees it, with the surface's texture and the ambient light gone;
 it is clipped to [0, 1] and encoded back to 8 bits through the inverse gamma, so that it looks like
-the projected image. Where the white photo is not brighter than the black by ``MARGIN`` grey levels
-the projector does not reach (a shadow, beyond the surface): 0 there. With the white photo alone
-(no black), ``captured / white``: the surface's colour is divided out, the ambient light is not (and
-where the projector does not reach, the captured image is the white photo: full white there).
+the projected image. With the devices' measured response (``projsynth response``), the photos are
+linearised by the camera's curve and the ratio encoded back by the projector's inverse curve: the code
+values the projector was sent, as the camera saw them. Where the white photo is not brighter than the
+black by ``MARGIN`` grey levels the projector does not reach (a shadow, beyond the surface): 0 there.
+With the white photo alone (no black), ``captured / white``: the surface's colour is divided out, the
+ambient light is not (and where the projector does not reach, the captured image is the white photo:
+full white there).
 
 Convention: images uint8 RGB ``(H, W, 3)`` in the captured frame; the result is uint8 RGB of the
 captured image's size.
@@ -23,6 +26,8 @@ captured image's size.
 from __future__ import annotations
 
 import numpy as np
+
+from projsynth.structured.response import Response
 
 from ..errors import ProjregError
 from .radiometric import SWAPPED_SHARE, to_linear
@@ -38,6 +43,7 @@ def normalise_capture(
     captured: np.ndarray,
     white: np.ndarray,
     black: np.ndarray | None = None,
+    response: Response | None = None,
     *,
     gamma: float = GAMMA,
 ) -> np.ndarray:
@@ -49,7 +55,8 @@ def normalise_capture(
             projector's light is underestimated and the result clips at white (measured: better than
             dropping those pixels, and than a dimmer white, docs/design.md).
         black: its photo of a full-black projection, same size; None: the ambient light stays in.
-        gamma: the devices' gamma (:func:`linearise`).
+        response: the devices' measured curves; None: ``gamma`` for both.
+        gamma: the devices' gamma without a measured response.
 
     Returns:
         uint8 RGB ``(H, W, 3)``: the projected picture as this camera sees it, 0 where the projector
@@ -67,15 +74,12 @@ def normalise_capture(
     check_photos(white, black)
     floor = np.zeros_like(white) if black is None else black
     reached = white.astype(np.int16) - floor.astype(np.int16) >= MARGIN  # [H, W, 3]
-    c, w, b = linearise(captured, gamma), linearise(white, gamma), linearise(floor, gamma)
-    ratio = np.where(reached, (c - b) / np.where(reached, w - b, 1), 0)
-    return np.rint(255 * np.clip(ratio, 0, 1) ** np.float32(1 / gamma)).astype(np.uint8)
-
-
-def linearise(image: np.ndarray, gamma: float) -> np.ndarray:
-    """A photo's values in linear light, float32 in [0, 1]: the camera's response taken as ``gamma``
-    (the one place a measured response would replace it)."""
-    return to_linear(image, gamma)
+    linear = (lambda im: to_linear(im, gamma)) if response is None else response.camera_linear
+    c, w, b = linear(captured), linear(white), linear(floor)
+    ratio = np.clip(np.where(reached, (c - b) / np.where(reached, w - b, 1), 0), 0, 1)
+    if response is not None:
+        return response.projector_codes(ratio)
+    return np.rint(255 * ratio ** np.float32(1 / gamma)).astype(np.uint8)
 
 
 def check_photos(white: np.ndarray, black: np.ndarray | None) -> None:

@@ -35,6 +35,7 @@ import numpy as np
 from projsynth.errors import ProjsynthError
 from projsynth.flow.formats import encode_flow_exr
 from projsynth.flow.pictures import flow_picture, scale_of
+from projsynth.structured.response import read_response
 from projsynth.utils.files import write_atomic_all
 from projsynth.utils.images import list_images, load_image, png_bytes
 
@@ -153,6 +154,7 @@ def predict(
     track: bool = False,
     white: Path | None = None,
     black: Path | None = None,
+    response: Path | None = None,
 ) -> list[Predicted]:
     """Predict the flow of one pair of files, or of every pair of two folders.
 
@@ -178,6 +180,8 @@ def predict(
         white, black: the camera's photos of a full-white and a full-black projection (``black``
             optional), of every captured image's size: each captured image is registered with the
             surface divided out (module docstring).
+        response: with ``white``, a ``projsynth response`` file: the photos linearised by the devices'
+            measured curves instead of gamma 2.2.
 
     Returns:
         One :class:`Predicted` per pair, in pair order (the caller warns about unregistered pairs).
@@ -205,9 +209,10 @@ def predict(
     guard_outputs(
         [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
         [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
-        + [(opt, Path(p)) for opt, p in (("--model", weights), ("--white", white), ("--black", black)) if p],
+        + [(opt, Path(p)) for opt, p in (("--model", weights), ("--white", white), ("--black", black)) if p]
+        + ([("--response", Path(response))] if response else []),
     )
-    photos = _photos(jobs[: 1 if track else len(jobs)], white, black)
+    photos = _photos(jobs[: 1 if track else len(jobs)], white, black, response)
     net = open_network(weights, backend=backend, device=device, precision=precision)
     max_side, finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
     refiner = GeometricRefiner(setting.refine) if refine else None
@@ -272,10 +277,14 @@ def _require_one_size(jobs: list[Job]) -> None:
                 )
 
 
-def _photos(jobs: list[Job], white: Path | None, black: Path | None) -> Photos | None:
-    """The rig's photos (:func:`~projreg.inference.register.rig_photos`), checked against the captured
-    image of every job (before any pair is registered and written; one more decode per pair)."""
-    photos = rig_photos(*(None if p is None else _load(p) for p in (white, black)))
+def _photos(jobs: list[Job], white: Path | None, black: Path | None, response: Path | None) -> Photos | None:
+    """The rig's photos and response (:func:`~projreg.inference.register.rig_photos`), checked against the
+    captured image of every job (before any pair is registered and written; one more decode per pair)."""
+    try:
+        curves = None if response is None else read_response(Path(response))
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    photos = rig_photos(*(None if p is None else _load(p) for p in (white, black)), curves)
     for job in jobs if photos is not None else ():
         shape = _load(job.captured).shape
         if shape != photos[0].shape:
@@ -313,6 +322,7 @@ def _write(
         attrs["tracking"] = tracking
     if photos is not None:
         attrs["photos"] = "white and black" if photos[1] is not None else "white alone (ambient light kept)"
+        attrs["photos"] += ", measured response" if photos[2] is not None else ", gamma 2.2"
     try:
         files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs, confidence=pred.confidence))]
         if job.viz is not None:

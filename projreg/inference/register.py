@@ -14,13 +14,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from projsynth.structured.response import Response
+
 from ..errors import ProjregError
 from ..geometry.frames import flow_to_captured, frame_scale, resize_to
 from ..refine.refiner import GeometricRefiner
 from .photos import check_photos, normalise_capture
 from .runtime import Network, finer_flow, flows_resized
 
-Photos = tuple[np.ndarray, np.ndarray | None]  # a rig's photos of a full-white and (optionally) a full-black projection
+# a rig's photos of a full-white and (optionally) a full-black projection, and the devices' measured response
+Photos = tuple[np.ndarray, np.ndarray | None, Response | None]
 
 
 @dataclass(frozen=True)
@@ -88,16 +91,19 @@ def register_pairs(
     return out
 
 
-def rig_photos(white: np.ndarray | None, black: np.ndarray | None) -> Photos | None:
-    """``(white, black)`` checked (:func:`~projreg.inference.photos.check_photos`), None without a white
-    photo; a black photo alone is refused (it says nothing about the projector's light)."""
+def rig_photos(white: np.ndarray | None, black: np.ndarray | None, response: Response | None = None) -> Photos | None:
+    """``(white, black, response)`` checked (:func:`~projreg.inference.photos.check_photos`), None without a
+    white photo; a black photo or a response alone is refused (neither says what the projector lights)."""
     if white is None:
-        if black is not None:
-            raise ProjregError("--black needs --white: the black photo alone says nothing about the projector's light")
+        for name, given in (("--black", black), ("--response", response)):
+            if given is not None:
+                raise ProjregError(f"{name} needs --white: the rig's photo of a full-white projection")
         return None
+    if response is not None and not isinstance(response, Response):
+        raise ProjregError(f"response: expected a projsynth Response, got {type(response).__name__}")
     photos = (check_image("white", white), None if black is None else check_image("black", black))
     check_photos(*photos)
-    return photos
+    return (*photos, response)
 
 
 MIN_IMAGE_SIDE = 8  # a smaller image holds no correspondence worth a flow (a 1 x 1 camera, an empty array)

@@ -6,6 +6,7 @@ import pytest
 
 from projreg import ProjregError
 from projreg.inference.photos import MARGIN, normalise_capture
+from projsynth.structured.response import Response
 
 H, W, SHIFT = 40, 56, (5, 3)  # the camera sees projector pixel (x, y) at (x + 5, y + 3)
 AMBIENT, POWER = 0.25, 0.7
@@ -101,3 +102,28 @@ def test_photos_that_cannot_be_this_rigs_are_refused_naming_the_option():
         normalise_capture(captured, black, black)
     with pytest.raises(ProjregError, match=r"^--white is nowhere brighter than black by 4 grey levels"):
         normalise_capture(captured, np.full_like(white, MARGIN - 1))
+
+
+def test_with_the_devices_measured_response_the_projected_codes_come_back():
+    """A camera of exponent 1.6 and a projector of gamma 2.6 (not 2.2): linearised by the measured curves,
+    the ratio read back through the projector's inverse curve is the code value it was sent."""
+    rng = np.random.default_rng(3)
+    albedo = rng.uniform(0.35, 1.0, (H, W, 3))
+    projected = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)
+    curve = (np.arange(256, dtype=np.float64) / 255) ** 2.6
+
+    def photo(codes):  # the camera's photo of projector codes, no shift: ambient + projector light, exponent 1.6
+        light = albedo * (AMBIENT + POWER * curve[codes])
+        return np.clip(np.rint(255 * np.clip(light, 0, 1) ** (1 / 1.6)), 0, 255).astype(np.uint8)
+
+    white, black = photo(np.full_like(projected, 255)), photo(np.zeros_like(projected))
+    response = Response(1.6, np.tile(curve, (3, 1)).astype(np.float32))
+    measured = normalise_capture(photo(projected), white, black, response)
+    assumed = normalise_capture(photo(projected), white, black)  # gamma 2.2 for both devices
+    mid = (projected > 40) & (projected < 215)  # away from the 8-bit camera's coarse steps at either end
+    err_measured = np.abs(measured.astype(int) - projected)[mid]
+    err_assumed = np.abs(assumed.astype(int) - projected)[mid]
+    assert np.median(err_measured) <= 1 and err_measured.mean() < 2.0, err_measured.mean()
+    assert err_assumed.mean() > 3 * err_measured.mean(), (err_assumed.mean(), err_measured.mean())
+    same = normalise_capture(photo(projected), white, black, Response.from_gamma(2.2))
+    assert np.abs(same.astype(int) - assumed).max() <= 1  # the assumed gamma as a response: the gamma path

@@ -1,3 +1,5 @@
+import json
+
 import cv2
 import numpy as np
 import torch
@@ -13,6 +15,7 @@ from projreg.training.validate import predict_flow
 from projsynth.dataset.shards import ShardReader
 from projsynth.flow.formats import read_flow_exr
 from projsynth.flow.pictures import flow_to_color
+from projsynth.structured.response import Response, projector_curve, response_record
 
 CPU = torch.device("cpu")
 
@@ -198,14 +201,25 @@ def test_the_rigs_photos_divide_the_surface_out_of_every_captured_image(pairs, t
         _write(tmp_path / "C" / f"{name}.png", img1)
     folders = ("--projected", tmp_path / "P", "--captured", tmp_path / "C", "--model", tiny_ckpt)
     registrar = Registrar(tiny_ckpt, device="cpu")
-    for photos, said in (
-        (("--white", w, "--black", b), "white and black"),
-        (("--white", w), "white alone (ambient light kept)"),
+    levels = (0, 64, 128, 191, 255)
+    points = np.tile((np.array(levels) / 255) ** 2.6, (3, 1))
+    measured = Response(1.8, projector_curve(levels, points), True, (1.7, 1.9), levels, points, 1.0, 100)
+    (tmp_path / "r.json").write_text(json.dumps(response_record(measured)))
+    for k, (photos, said) in enumerate(
+        (
+            (("--white", w, "--black", b), "white and black, gamma 2.2"),
+            (("--white", w), "white alone (ambient light kept), gamma 2.2"),
+            (("--white", w, "--black", b, "--response", tmp_path / "r.json"), "white and black, measured response"),
+        )
     ):
-        out = tmp_path / said.split()[1]
+        out = tmp_path / f"run{k}"
         result = _cli(*folders, "--out", out, *photos)
         assert result.exit_code == 0, (result.stderr, result.exception)
-        expected = registrar.register(img0, img1, white=white, black=black if len(photos) == 4 else None)
+        kwargs = {
+            "black": black if len(photos) >= 4 else None,
+            "response": tmp_path / "r.json" if len(photos) == 6 else None,
+        }
+        expected = registrar.register(img0, img1, white=white, **kwargs)
         for name in ("one", "two"):
             flow, valid, header = read_flow_exr(out / f"{name}_flow.exr")
             assert header["photos"] == said
@@ -213,6 +227,9 @@ def test_the_rigs_photos_divide_the_surface_out_of_every_captured_image(pairs, t
             np.testing.assert_array_equal(valid, expected.claimed)
     files = ("--projected", tmp_path / "P" / "one.png", "--captured", tmp_path / "C" / "one.png", "--model", tiny_ckpt)
     one_line_error(_cli(*files, "--out", tmp_path / "f.exr", "--black", b), "--black needs --white")
+    one_line_error(
+        _cli(*files, "--out", tmp_path / "f.exr", "--response", tmp_path / "r.json"), "--response needs --white"
+    )
     small = _write(tmp_path / "small.png", white[::2, ::2])
     one_line_error(_cli(*folders, "--out", tmp_path / "o", "--white", small), f"--white {small} is 48x32 px", "96x64")
     one_line_error(_cli(*files, "--out", tmp_path / "f.exr", "--white", b, "--black", w), "swapped")
@@ -250,7 +267,7 @@ def test_track_mode_divides_every_frame_by_the_same_photos(tiny_sequences, tiny_
     )
     assert result.exit_code == 0, (result.stderr, result.exception)
     headers = [read_flow_exr(out / f"{i:02d}_flow.exr")[2] for i in range(2)]
-    assert [h["photos"] for h in headers] == ["white and black"] * 2 and headers[0]["tracking"] == "full"
+    assert [h["photos"] for h in headers] == ["white and black, gamma 2.2"] * 2 and headers[0]["tracking"] == "full"
     first = Registrar(tiny_ckpt, device="cpu").register(
         frames[0]["projected"], frames[0]["captured"], white=white, black=black
     )
