@@ -46,7 +46,7 @@ from projsynth.structured.patterns import make_set
 from projsynth.structured.response import Response, fit_response
 
 from ..errors import ProjregError
-from ..inference.compensate import compensate, lands_in_frame, prewarp
+from ..inference.compensate import compensate, content_mask, lands_in_frame, prewarp
 from ..inference.radiometric import calibrate, solve, to_linear
 from ..prediction import Prediction, as_prediction
 
@@ -159,13 +159,10 @@ class ClosedLoop:
 
 def surface_shown(pred: Prediction, valid: np.ndarray, camera: tuple[int, int]) -> float | None:
     """The share of the projector pixels that light the surface in the frame (the truth's ``valid``) to
-    which the default compensation gives content: all for a pair not registered (projected as it is),
-    else those whose flow lands in the camera frame."""
+    which the default compensation gives content (:func:`~projreg.inference.compensate.content_mask`)."""
     if not valid.any():
         return None
-    if not pred.registered:
-        return 1.0
-    return float(lands_in_frame(pred.flow, valid, camera).sum() / valid.sum())
+    return float(content_mask(pred.flow, None, pred.registered, "complete", camera)[valid].mean())
 
 
 def compared_region(truth_view: View, valid: np.ndarray) -> np.ndarray:

@@ -85,7 +85,6 @@ def compensate(
 
 
 def shown_pixels(
-    flow: np.ndarray,
     claimed: np.ndarray | None,
     confidence: np.ndarray | None,
     coverage: str = "complete",
@@ -132,20 +131,22 @@ def prewarp(
     A pair not ``registered`` is projected as it is (``content`` resized to the projector's grid),
     except with ``claimed`` coverage, where nothing is claimed and :func:`compensate` refuses.
     """
-    shown = shown_pixels(flow, claimed, confidence, coverage, min_confidence)
+    shown = shown_pixels(claimed, confidence, coverage, min_confidence)
     if not registered and coverage == "complete":
         h, w = flow.shape[:2]
         return cv2.resize(content, (w, h), interpolation=cv2.INTER_AREA)
     return compensate(content, flow, shown, fill, camera_size)
 
 
-def shown_share(
+def content_mask(
     flow: np.ndarray, shown: np.ndarray | None, registered: bool, coverage: str, camera_size: tuple[int, int]
-) -> float:
-    """The share of the projector's pixels that :func:`prewarp` gives content."""
+) -> np.ndarray:
+    """The projector pixels that :func:`prewarp` gives content, bool ``(H, W)``: every one for a pair not
+    registered (projected as it is), else those of ``shown`` (None: all) whose flow lands in the frame."""
+    everywhere = np.ones(flow.shape[:2], bool)
     if not registered and coverage == "complete":
-        return 1.0
-    return float(lands_in_frame(flow, np.ones(flow.shape[:2], bool) if shown is None else shown, camera_size).mean())
+        return everywhere
+    return lands_in_frame(flow, everywhere if shown is None else shown, camera_size)
 
 
 def check_aspect(content: tuple[int, ...], camera: tuple[int, int], name: str = "--content") -> None:
@@ -222,10 +223,10 @@ def compensate_files(
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
     registered = f.header.get("registered", "yes") != "no"  # ground truth and other tools' flows say nothing
-    shown = shown_pixels(f.flow, f.valid, f.confidence, coverage, min_confidence)  # the options checked
+    shown = shown_pixels(f.valid, f.confidence, coverage, min_confidence)  # the options checked
     if PREDICTED not in f.header:  # not predict's (ground truth, another tool): its flow is defined where valid says
         coverage = "claimed"
-        shown = shown_pixels(f.flow, f.valid, f.confidence, coverage, min_confidence)
+        shown = shown_pixels(f.valid, f.confidence, coverage, min_confidence)
     stated, warnings = _camera_size(f.header, flow), []
     # without a stated frame, the photos' (they are the camera's), else the flow's own grid
     camera = stated or (photos[0].shape[:2] if photos is not None else f.valid.shape)
@@ -258,5 +259,5 @@ def compensate_files(
     except ProjregError as e:
         raise ProjregError(f"--flow {flow}: {e}") from e
     write_png(Path(out), projector)
-    lit = shown_share(f.flow, shown, registered, coverage, camera)
+    lit = float(content_mask(f.flow, shown, registered, coverage, camera).mean())
     return {"size": tuple(projector.shape[:2]), "lit": lit, "registered": registered, "warnings": warnings}
