@@ -29,7 +29,7 @@ from projsynth.structured.response import Response, read_response
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import flow_to_captured, frame_scale, resize_to
-from .inference.compensate import check_aspect, prewarp
+from .inference.compensate import as_it_is, check_aspect, prewarp
 from .inference.photos import normalise_capture
 from .inference.radiometric import calibrate, solve
 from .inference.register import Photos, Registration, check_image, register_pairs, rig_photos
@@ -267,7 +267,8 @@ def export_warp(
     for a content of ``content_size`` ``(H, W)`` (default: the camera frame's), each with the coverage
     of :func:`compensate` (docs/show.md; :mod:`projreg.inference.warpfiles`). Returns what was written:
     ``format``, ``size``, ``shown`` and, for a mesh, its interpolation error ``error_mean`` and
-    ``error_max`` in camera pixels (:func:`projreg.inference.warpfiles.write_warp`)."""
+    ``error_max`` in camera pixels (:func:`projreg.inference.warpfiles.write_warp`), with ``registered``
+    and ``as_it_is`` (the pair was not registered: the map is the identity)."""
     if isinstance(source, str | os.PathLike):
         return export_warp_file(
             Path(source),
@@ -278,7 +279,8 @@ def export_warp(
             min_confidence=min_confidence,
         )
     m = warp_map(source, coverage=coverage, min_confidence=min_confidence)
-    return write_warp(m, Path(out), step=step, content_size=content_size)
+    result = write_warp(m, Path(out), step=step, content_size=content_size)
+    return result | {"registered": source.registered, "as_it_is": as_it_is(source.registered, coverage)}
 
 
 def _answer(reg: Registration) -> dict:

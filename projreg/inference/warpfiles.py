@@ -59,8 +59,13 @@ def check_options(suffix: str, step: int | None, content_size: tuple[int, int] |
             f"--content-size is for cv2.remap maps (.npz), in content pixels; a {FORMATS[suffix]} is in normalised "
             "UV, for content of any size"
         )
-    if len(content_size) != 2 or not all(
-        isinstance(v, int | np.integer) and not isinstance(v, bool) and 1 <= v <= MAX_CONTENT_SIDE for v in content_size
+    if (
+        not isinstance(content_size, tuple | list)
+        or len(content_size) != 2
+        or not all(
+            isinstance(v, int | np.integer) and not isinstance(v, bool) and 1 <= v <= MAX_CONTENT_SIDE
+            for v in content_size
+        )
     ):
         raise ProjregError(f"--content-size: expected two integers in 1..{MAX_CONTENT_SIDE}, got {content_size!r}")
 

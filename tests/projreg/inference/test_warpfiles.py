@@ -2,14 +2,21 @@
 show software applies it, reproduces ``projreg compensate`` of the same flow; bad input is one line, exit
 2, nothing written."""
 
+import io
+
 import cv2
 import numpy as np
 import OpenEXR
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from projreg.api import Registration, compensate, export_warp, warp_map
 from projreg.cli import app
+from projreg.errors import ProjregError
+from projreg.inference.warpfiles import encode_npz, encode_stmap
+from projreg.inference.warpmaps import warp_map as flow_warp_map
 from projsynth.flow.formats import encode_flow_exr
 
 from .warpcases import CAMERA, H, W, bent_homography, parse_obj, rasterise
@@ -202,3 +209,31 @@ def test_a_file_that_is_not_a_flow_is_one_line_naming_it(tmp_path):
     assert not (tmp_path / "w.exr").exists()
     result = run("warp", "--flow", tmp_path / "missing.exr", "--out", tmp_path / "w.exr")
     assert result.exit_code == 2 and "missing.exr: cannot read" in result.stderr
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    shape=st.tuples(st.integers(2, 12), st.integers(2, 12)),
+    shift=st.tuples(st.floats(-1, 1, width=32), st.floats(-1, 1, width=32)),  # some pixel always lands inside
+    content=st.tuples(st.integers(1, 40), st.integers(1, 40)),
+)
+def test_the_files_hold_the_map_bit_for_bit(shape, shift, content):
+    m = flow_warp_map(np.broadcast_to(np.array(shift, np.float32), (*shape, 2)))
+    exr = OpenEXR.File(io.BytesIO(encode_stmap(m, "a test")), separate_channels=True)
+    np.testing.assert_array_equal(np.stack([exr.channels()[c].pixels for c in "RGBA"], -1), m.stmap())
+    npz = np.load(io.BytesIO(encode_npz(m, content)))
+    map_x, map_y = m.remap_maps(content)
+    np.testing.assert_array_equal(npz["map_x"], map_x)
+    np.testing.assert_array_equal(npz["map_y"], map_y)
+    np.testing.assert_array_equal(npz["shown"], m.shown)
+    assert tuple(npz["content_size"]) == content
+
+
+def test_the_api_refuses_a_content_size_that_is_not_two_integers(tmp_path):
+    flow, claimed, confidence = flow_file(tmp_path / "f.exr")
+    reg = Registration(flow, claimed, confidence, True, "", CAMERA)
+    for bad in (60, (60.0, 80), (60, 80, 3), (True, 80)):
+        with pytest.raises(ProjregError, match="--content-size: expected two integers"):
+            export_warp(reg, tmp_path / "w.npz", content_size=bad)
+    assert not (tmp_path / "w.npz").exists()
+    assert export_warp(reg, tmp_path / "w.npz", content_size=[120, 160])["content_size"] == (120, 160)
