@@ -75,26 +75,30 @@ def grid_mesh(m: WarpMap, step: int = DEFAULT_STEP) -> GridMesh:
 
 def drawn_map(mesh: GridMesh) -> WarpMap:
     """The map a renderer draws from ``mesh``: UV interpolated linearly over each triangle, shown on
-    the projector pixels its faces cover (their edges included)."""
+    the projector pixels its faces cover (their edges included). Computed one row of cells at a time,
+    so that a 4K frame needs memory for a band of ``step`` rows only."""
     h, w = mesh.shape
     nx, ny = len(mesh.xs), len(mesh.ys)
     cx = np.minimum(np.searchsorted(mesh.xs, np.arange(w), side="right") - 1, nx - 2)  # [W] cell of each column
-    cy = np.minimum(np.searchsorted(mesh.ys, np.arange(h), side="right") - 1, ny - 2)  # [H]
     s = (np.arange(w) - mesh.xs[cx]) / (mesh.xs[cx + 1] - mesh.xs[cx])  # [W] in [0, 1] across the cell
-    t = (np.arange(h) - mesh.ys[cy]) / (mesh.ys[cy + 1] - mesh.ys[cy])  # [H]
-    S, T = s[None, :, None], t[:, None, None]  # [1, W, 1], [H, 1, 1]
-    r, c = cy[:, None], cx[None, :]
-    tl, tr = mesh.uv[r, c].astype(np.float64), mesh.uv[r, c + 1].astype(np.float64)  # [H, W, 2]
-    bl, br = mesh.uv[r + 1, c].astype(np.float64), mesh.uv[r + 1, c + 1].astype(np.float64)
-    lower = tl * (1 - T) + bl * (T - S) + br * S  # triangle (tl, bl, br), where t >= s
-    upper = tl * (1 - S) + tr * (S - T) + br * T  # triangle (tl, br, tr), where s >= t
-    uv = np.where(T >= S, lower, upper)
-    # a pixel on a grid line belongs to the cells on both sides of it
-    on_x, on_y = (s == 0) & (cx > 0), (t == 0) & (cy > 0)
-    faces = mesh.faces
-    covered = faces[r, c] | (on_x[None, :] & faces[r, c - 1]) | (on_y[:, None] & faces[r - 1, c])
-    covered |= on_x[None, :] & on_y[:, None] & faces[r - 1, c - 1]
-    uv = np.where(covered[..., None], uv, OUTSIDE).astype(np.float32)
+    on_x = (s == 0) & (cx > 0)  # [W] on a vertical grid line: also in the cell to its left
+    S, c = s[None, :, None], cx[None, :]  # [1, W, 1], [1, W]
+    uv = np.full((h, w, 2), OUTSIDE, np.float32)
+    covered = np.zeros((h, w), bool)
+    for j in range(ny - 1):
+        y0, y1 = int(mesh.ys[j]), int(mesh.ys[j + 1])
+        rows = np.arange(y0, y1 + (j == ny - 2))  # [B] the band of rows of this row of cells (the last: and y1)
+        T = ((rows - y0) / (y1 - y0))[:, None, None]  # [B, 1, 1]
+        tl, tr = mesh.uv[j, c].astype(np.float64), mesh.uv[j, c + 1].astype(np.float64)  # [1, W, 2]
+        bl, br = mesh.uv[j + 1, c].astype(np.float64), mesh.uv[j + 1, c + 1].astype(np.float64)
+        lower = tl * (1 - T) + bl * (T - S) + br * S  # triangle (tl, bl, br), where t >= s
+        upper = tl * (1 - S) + tr * (S - T) + br * T  # triangle (tl, br, tr), where s >= t
+        faces = mesh.faces[j][c] | (on_x[None, :] & mesh.faces[j][c - 1])  # [1, W]
+        band = np.repeat(faces, len(rows), axis=0)  # [B, W]
+        if j > 0:  # the band's first row lies on a horizontal grid line: also in the cells above
+            band[0] |= mesh.faces[j - 1][cx] | (on_x & mesh.faces[j - 1][cx - 1])
+        uv[rows] = np.where(band[..., None], np.where(T >= S, lower, upper), OUTSIDE)
+        covered[rows] = band
     return WarpMap(uv, covered, mesh.camera_size)
 
 
