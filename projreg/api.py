@@ -2,8 +2,10 @@
 
 A :class:`Registrar` loads a network once (the shipped reference, a checkpoint, or an ONNX graph) with
 a quality setting, and registers one pair, a batch, or the frames of a sequence (tracking); each answer
-is a :class:`Registration`. :func:`compensate` pre-warps content with one, :func:`end_point_error`
-measures one against a truth. ``projreg predict`` and ``projreg bench`` run the same code.
+is a :class:`Registration`. :func:`compensate` pre-warps content with one, :func:`warp_map` and
+:func:`export_warp` give its pre-warp as a map for show software (an STMap, a mesh, ``cv2.remap``
+maps), :func:`end_point_error` measures one against a truth. ``projreg predict`` and ``projreg bench``
+run the same code.
 
 Conventions: images are uint8 RGB ``(H, W, 3)``; the captured image may have another size than the
 projected one. A flow is float32 ``(H, W, 2)`` on the projected grid, forward (projected ->
@@ -27,12 +29,15 @@ from projsynth.structured.response import Response, read_response
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import flow_to_captured, frame_scale, resize_to
-from .inference.compensate import check_aspect, prewarp
+from .inference.compensate import as_it_is, check_aspect, prewarp
 from .inference.photos import normalise_capture
 from .inference.radiometric import calibrate, solve
 from .inference.register import Photos, Registration, check_image, register_pairs, rig_photos
 from .inference.runtime import DEFAULT_BACKEND, open_network
 from .inference.track import Tracker
+from .inference.warpfiles import export_warp_file, write_warp
+from .inference.warpmaps import WarpMap
+from .inference.warpmaps import warp_map as flow_warp_map
 from .prediction import CONFIDENT, Prediction
 from .refine.config import DEFAULT_QUALITY
 from .refine.config import quality as quality_setting
@@ -215,10 +220,7 @@ def compensate(
     :class:`projsynth.structured.response.Response`, e.g. from ``projsynth.fit_device_response``, or the
     path of a ``projsynth response`` file), else ``gamma`` for both (2.2 by default). Returns uint8 RGB
     on the projected grid."""
-    if not isinstance(registration, Registration):
-        raise ProjregError(
-            f"registration: expected a Registration (Registrar.register's answer), got {type(registration).__name__}"
-        )
+    _check_registration(registration)
     if not (isinstance(fill, int | np.integer) and 0 <= fill <= 255):
         raise ProjregError(f"fill: must be an integer in 0..255, got {fill!r}")
     image = check_image("content", content)
@@ -236,18 +238,69 @@ def compensate(
         if white.shape[:2] != tuple(camera):
             raise ProjregError(f"white photo is {white.shape[:2]}, the registration's camera frame {tuple(camera)}")
         image = solve(resize_to(image, white.shape), model)[0]
-    reg = registration
-    return prewarp(
-        image,
-        reg.flow,
-        claimed=reg.claimed,
-        confidence=reg.confidence,
-        registered=reg.registered,
-        coverage=coverage,
-        min_confidence=min_confidence,
-        fill=fill,
-        camera_size=tuple(camera),
-    )
+    return prewarp(image, **_answer(registration), coverage=coverage, min_confidence=min_confidence, fill=fill)
+
+
+def warp_map(registration: Registration, *, coverage: str = "complete", min_confidence: float = 0.0) -> WarpMap:
+    """The pre-warp of :func:`compensate` as a map, for a loop that warps every frame of a video: for every
+    projector pixel the content point it shows, in normalised UV (an STMap's convention: ``u = (x + 0.5)
+    / W`` to the right, ``v = 1 - (y + 0.5) / H`` up, ``(x, y)`` in pixels of a ``W x H`` content spanning
+    the camera frame), and ``shown``, the pixels :func:`compensate` gives content with the same
+    ``coverage`` and ``min_confidence`` (a registration that did not register: the identity map).
+    ``WarpMap.remap_maps((H, W))`` gives ``cv2.remap``'s maps for a content of that size,
+    ``WarpMap.stmap()`` the STMap's RGBA (:mod:`projreg.inference.warpmaps`)."""
+    return flow_warp_map(**_answer(_check_registration(registration)), coverage=coverage, min_confidence=min_confidence)
+
+
+def export_warp(
+    source: Registration | str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    step: int | None = None,
+    content_size: tuple[int, int] | None = None,
+    coverage: str = "complete",
+    min_confidence: float = 0.0,
+) -> dict:
+    """Write the pre-warp of a registration, or of a flow EXR file (``projreg predict``'s), for show
+    software, as ``projreg warp``: the format from the suffix of ``out``, ``.exr`` an STMap, ``.obj`` a
+    mesh with a vertex every ``step`` projector pixels (16 by default), ``.npz`` ``cv2.remap``'s maps
+    for a content of ``content_size`` ``(H, W)`` (default: the camera frame's), each with the coverage
+    of :func:`compensate` (docs/show.md; :mod:`projreg.inference.warpfiles`). Returns what was written:
+    ``format``, ``size``, ``shown`` and, for a mesh, its interpolation error ``error_mean`` and
+    ``error_max`` in camera pixels (:func:`projreg.inference.warpfiles.write_warp`), with ``registered``
+    and ``as_it_is`` (the pair was not registered: the map is the identity)."""
+    if isinstance(source, str | os.PathLike):
+        return export_warp_file(
+            Path(source),
+            Path(out),
+            step=step,
+            content_size=content_size,
+            coverage=coverage,
+            min_confidence=min_confidence,
+        )
+    m = warp_map(source, coverage=coverage, min_confidence=min_confidence)
+    result = write_warp(m, Path(out), step=step, content_size=content_size)
+    return result | {"registered": source.registered, "as_it_is": as_it_is(source.registered, coverage)}
+
+
+def _answer(reg: Registration) -> dict:
+    """A registration as the arguments of :func:`~projreg.inference.compensate.prewarp` and
+    :func:`~projreg.inference.warpmaps.warp_map`, which take the coverage apart."""
+    return {
+        "flow": reg.flow,
+        "claimed": reg.claimed,
+        "confidence": reg.confidence,
+        "registered": reg.registered,
+        "camera_size": tuple(reg.camera_size),
+    }
+
+
+def _check_registration(registration: object) -> Registration:
+    if not isinstance(registration, Registration):
+        raise ProjregError(
+            f"registration: expected a Registration (Registrar.register's answer), got {type(registration).__name__}"
+        )
+    return registration
 
 
 def end_point_error(
@@ -267,4 +320,13 @@ def end_point_error(
     return acc.result()
 
 
-__all__ = ["CONFIDENT", "Registrar", "Registration", "compensate", "end_point_error"]
+__all__ = [
+    "CONFIDENT",
+    "Registrar",
+    "Registration",
+    "WarpMap",
+    "compensate",
+    "end_point_error",
+    "export_warp",
+    "warp_map",
+]

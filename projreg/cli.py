@@ -14,7 +14,18 @@ import typer
 from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
 from projsynth.utils.cores import available_cores
 
-from .cli_options import Backend, Device, Fast, Precision, Quality, ResponseFile, resolve_quality
+from .cli_options import (
+    Backend,
+    Coverage,
+    Device,
+    Fast,
+    MinConfidence,
+    Precision,
+    Quality,
+    ResponseFile,
+    resolve_quality,
+)
+from .cli_warp import warp
 from .errors import ProjregError
 from .refine.config import DEFAULT_QUALITY
 
@@ -513,20 +524,8 @@ def compensate(
             show_default=False,
         ),
     ] = None,
-    coverage: Annotated[
-        str,
-        typer.Option(
-            help="Which projector pixels show content: complete (every one whose flow lands in the camera "
-            "frame) or claimed (only the flow's valid pixels).",
-            metavar="complete|claimed",
-        ),
-    ] = "complete",
-    min_confidence: Annotated[
-        float,
-        typer.Option(
-            help="complete: show content only where the flow's confidence is at least this (0..1).", metavar="C"
-        ),
-    ] = 0.0,
+    coverage: Coverage = "complete",
+    min_confidence: MinConfidence = 0.0,
 ) -> None:
     """Pre-warp content: the projector image that makes the camera see CONTENT undistorted.
 
@@ -567,6 +566,9 @@ def compensate(
         f"--fill {fill} elsewhere",
         err=True,
     )
+
+
+app.command(cls=Command)(warp)
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Options that several ``projreg`` commands share (``bench``, ``predict``, ``compensate``), declared once
+"""Options that several ``projreg`` commands share (``bench``, ``predict``, ``compensate``, ``warp``), declared once
 as typed aliases, in the manner of ``projsynth.utils.console``'s ``MaxFlow`` and ``Quiet``."""
 
 from __future__ import annotations
@@ -46,6 +46,21 @@ ResponseFile = Annotated[
     Path | None,
     typer.Option(
         help="The devices' curves measured by `projsynth response` (replaces gamma 2.2).", metavar="FILE.json"
+    ),
+]
+
+Coverage = Annotated[
+    str,
+    typer.Option(
+        help="Which projector pixels show content: complete (every one whose flow lands in the camera "
+        "frame) or claimed (only the flow's valid pixels).",
+        metavar="complete|claimed",
+    ),
+]
+MinConfidence = Annotated[
+    float,
+    typer.Option(
+        help="complete: show content only where the flow's confidence is at least this (0..1).", metavar="C"
     ),
 ]
 

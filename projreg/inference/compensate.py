@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from projsynth.errors import ProjsynthError
-from projsynth.flow.formats import read_flow_file
+from projsynth.flow.formats import FlowFile, read_flow_file
 from projsynth.structured.response import read_response
 from projsynth.utils.images import load_image
 
@@ -132,10 +132,25 @@ def prewarp(
     except with ``claimed`` coverage, where nothing is claimed and :func:`compensate` refuses.
     """
     shown = shown_pixels(claimed, confidence, coverage, min_confidence)
-    if not registered and coverage == "complete":
+    if as_it_is(registered, coverage):
         h, w = flow.shape[:2]
         return cv2.resize(content, (w, h), interpolation=cv2.INTER_AREA)
     return compensate(content, flow, shown, fill, camera_size)
+
+
+def as_it_is(registered: bool, coverage: str) -> bool:
+    """Whether the content is projected as it is, unwarped: a pair not registered, with the complete
+    coverage (module docstring; with ``claimed`` coverage such a pair shows nothing)."""
+    return not registered and coverage == "complete"
+
+
+def file_coverage(f: FlowFile, coverage: str, min_confidence: float) -> tuple[bool, str]:
+    """A flow file's ``registered`` and the coverage in force for it, the options checked: a flow not
+    written by ``projreg predict`` (ground truth, another tool) is defined only where its ``valid`` says,
+    so its coverage is ``claimed`` whatever was asked."""
+    shown_pixels(f.valid, f.confidence, coverage, min_confidence)  # the options checked as asked
+    registered = f.header.get("registered", "yes") != "no"  # ground truth and other tools' flows say nothing
+    return registered, coverage if PREDICTED in f.header else "claimed"
 
 
 def content_mask(
@@ -144,7 +159,7 @@ def content_mask(
     """The projector pixels that :func:`prewarp` gives content, bool ``(H, W)``: every one for a pair not
     registered (projected as it is), else those of ``shown`` (None: all) whose flow lands in the frame."""
     everywhere = np.ones(flow.shape[:2], bool)
-    if not registered and coverage == "complete":
+    if as_it_is(registered, coverage):
         return everywhere
     return lands_in_frame(flow, everywhere if shown is None else shown, camera_size)
 
@@ -170,7 +185,7 @@ def lands_in_frame(flow: np.ndarray, valid: np.ndarray, camera_size: tuple[int, 
     return np.asarray(valid, bool) & lands_inside(flow, camera_size, 0.5)
 
 
-def _camera_size(header: dict[str, str], flow: Path) -> tuple[int, int] | None:
+def stated_camera_size(header: dict[str, str], flow: Path) -> tuple[int, int] | None:
     """The camera frame ``(Hc, Wc)`` a flow EXR's positions are in (``predict`` writes ``camera_size``);
     None when the header does not say (the flow's own grid is then taken for the camera's)."""
     text = header.get("camera_size")
@@ -222,12 +237,9 @@ def compensate_files(
         curves = None if response is None else read_response(Path(response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-    registered = f.header.get("registered", "yes") != "no"  # ground truth and other tools' flows say nothing
-    shown = shown_pixels(f.valid, f.confidence, coverage, min_confidence)  # the options checked
-    if PREDICTED not in f.header:  # not predict's (ground truth, another tool): its flow is defined where valid says
-        coverage = "claimed"
-        shown = shown_pixels(f.valid, f.confidence, coverage, min_confidence)
-    stated, warnings = _camera_size(f.header, flow), []
+    registered, coverage = file_coverage(f, coverage, min_confidence)
+    shown = shown_pixels(f.valid, f.confidence, coverage, min_confidence)
+    stated, warnings = stated_camera_size(f.header, flow), []
     # without a stated frame, the photos' (they are the camera's), else the flow's own grid
     camera = stated or (photos[0].shape[:2] if photos is not None else f.valid.shape)
     check_aspect(image.shape, camera)
