@@ -15,10 +15,12 @@ its positions are off by up to half a projector pixel. Here, per camera pixel an
    ``v`` against the crossings' camera positions ``q`` around pixel ``c`` (moving least squares); ``a``
    is the sub-pixel position. The window is ``WINDOW_EDGES`` boundary spacings wide (measured).
 
-Masks come from the data, not fixed levels. The noise of ``diff`` is measured per pixel: far from its
-own edge a bit's ``pattern + inverse`` equals ``white + black`` for any response, so the median over
-bits of ``|pattern + inverse - white - black|`` (twice the sensor noise, robust to the one or two bits
-near an edge), averaged over ``NOISE_WINDOW`` px, gives ``sigma`` of ``diff``. A pixel is kept where
+Masks come from the data, not fixed levels. The noise of ``diff`` is measured per pixel
+(:func:`diff_noise`): where a bit is clear of its own edge its ``pattern + inverse`` equals ``white +
+black`` for any response, so the median over the clear bits of ``|pattern + inverse - white - black|``
+(twice the sensor noise), averaged over ``NOISE_WINDOW`` px, gives ``sigma`` of ``diff``; never less than
+an 8-bit photo's quantisation (``MIN_DIFF_NOISE``), which is all the noise a noise-free photo has. A pixel
+is kept where
 ``white - black > MIN_CONTRAST_SNR sigma``, every bit more than ``BIT_MARGIN_PX`` from its own edge
 has the expected sign with ``|diff| > MIN_BIT_SNR sigma``, the crossings surround it, the fit's
 residual is small and its position lies within ``CODE_TOLERANCE_PX`` of its code. The camera -> projector
@@ -43,6 +45,12 @@ CODE_TOLERANCE_PX = 1.0  # sub-pixel position vs the integer code (a bit flipped
 NOISE_WINDOW = 7  # px, box over which the per-pixel noise of diff is averaged
 MIN_CONTRAST_SNR = 6.0  # white - black over the noise of diff
 MIN_BIT_SNR = 3.0  # |pattern - inverse| over its noise, for a bit far from its own edge
+# a bit is clear of its own edge (and counts in the noise of diff) where |pattern - inverse| is at least this
+# share of white - black: near its edge a camera response that is not linear, or clipping, adds to e_b
+CLEAR_BIT = 0.9
+# the least noise of diff: an 8-bit photo's quantisation (step / sqrt(12) per photo, two photos), so that on
+# noise-free photos a clear bit must still differ by a count and an unlit pixel is not "lit" by one count
+MIN_DIFF_NOISE = 1 / (255 * 6**0.5)
 # the fits' RMS residual at this percentile is the position noise handed to invert_map (it sets its window):
 # the residual sees the crossings' scatter, not the interpolation error they share, so a high percentile
 NOISE_PERCENTILE = 95
@@ -104,15 +112,27 @@ def window_noise(noise_px: float) -> float:
 def diff_noise(stack: dict[str, np.ndarray], bits_x: int, bits_y: int) -> np.ndarray:
     """``(Hc, Wc)`` float32: the standard deviation of one ``pattern - inverse`` at each camera pixel.
 
-    ``e_b = pattern_b + inverse_b - white - black`` is 0 plus four photos' noise (sigma ``2 s``) far from
-    bit ``b``'s edge; its median absolute value over bits is ``0.6745 * 2 s``; ``diff`` has ``sqrt(2) s``.
+    ``e_b = pattern_b + inverse_b - white - black`` is 0 plus four photos' noise (sigma ``2 s``) where bit
+    ``b`` is clear of its own edge; near the edge a camera response that is not linear, or clipping, adds to
+    it. So only the clear bits count: ``|pattern - inverse|`` at least ``CLEAR_BIT`` of ``white - black``
+    (``pattern + inverse`` and ``pattern - inverse`` have independent noise, so the choice does not bias
+    ``e_b``); the median of their ``|e_b|`` is ``0.6745 * 2 s``, and ``diff`` has ``sqrt(2) s``. Averaged over
+    ``NOISE_WINDOW`` px (a pixel without a clear bit takes its neighbours'), never below ``MIN_DIFF_NOISE``.
     """
-    base = stack["white"] + stack["black"]
+    white, black = stack["white"], stack["black"]
     names = [f"{a}{b}" for a, n in (("col", bits_x), ("row", bits_y)) for b in range(n)]
-    e = np.stack([np.abs(stack[k] + stack[f"{k}-inv"] - base) for k in names])  # [B, Hc, Wc]
-    s = np.median(e, axis=0) / (0.6745 * 2)
-    s2 = cv2.blur((s * s).astype(np.float32), (NOISE_WINDOW, NOISE_WINDOW), borderType=cv2.BORDER_REFLECT)
-    return np.sqrt(2 * s2) + np.float32(1e-6)
+    clear = np.stack([np.abs(stack[k] - stack[f"{k}-inv"]) >= CLEAR_BIT * (white - black) for k in names])
+    e = np.stack([np.abs(stack[k] + stack[f"{k}-inv"] - white - black) for k in names])  # [B, Hc, Wc]
+    e = np.sort(np.where(clear, e, np.inf), axis=0)  # the clear bits' |e_b| first, in order
+    count = clear.sum(axis=0)
+    middle = [np.take_along_axis(e, np.maximum(i, 0)[None], 0)[0] for i in ((count - 1) // 2, count // 2)]
+    s = np.where(count > 0, 0.5 * (middle[0] + middle[1]), 0) / (0.6745 * 2)
+    has = (count > 0).astype(np.float32)
+    box = (NOISE_WINDOW, NOISE_WINDOW)
+    s2 = cv2.blur((s * s).astype(np.float32), box, borderType=cv2.BORDER_REFLECT)
+    n = cv2.blur(has, box, borderType=cv2.BORDER_REFLECT)
+    s2 = np.maximum(s2, 0) / np.maximum(n, np.float32(1 / NOISE_WINDOW**2))  # a box sum can dip below 0
+    return np.maximum(np.sqrt(2 * s2), np.float32(MIN_DIFF_NOISE))
 
 
 def edge_crossings(
