@@ -1,9 +1,11 @@
 """Structured-light decode accuracy and speed on the virtual rig, against the simulator's exact truth.
 
-Usage: python bench/bench_decode.py [--size 480x640] [--camera 600x800] [--every 4] [--seed 0] [--json F]
+Usage: python bench/bench_decode.py [--size 480x640] [--camera 600x800] [--every 4] [--seed 0]
+    [--kinds graycode,dots] [--json F]
 
-For every ``--every``-th transform of the built-in table: photograph the graycode and the dots
-patterns through that scene (``projsynth.structured.capture``), decode, and compare with the exact forward map.
+For every ``--every``-th transform of the built-in table: photograph each of the ``--kinds`` pattern sets
+(``graycode``, ``dots``, ``opencv-graycode``) through that scene (``projsynth.structured.capture``), decode,
+and compare with the exact forward map.
 Prints one Markdown row per condition and per family (pooled), the worst transform of each metric,
 and the decode time per set. ``--json F`` also writes them: per pattern set (``kinds``), the rows
 ``by_condition`` and ``by_family`` and one record per transform (``scenes``); docs/results.md is
@@ -103,12 +105,13 @@ def main() -> None:
     ap.add_argument("--camera", default="600x800")
     ap.add_argument("--every", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--kinds", default="graycode,dots", help="pattern sets, comma-separated (also opencv-graycode)")
     ap.add_argument("--json", type=Path, help="also write the figures as JSON to this file")
     args = ap.parse_args()
     size, camera = parse_size(args.size), parse_size(args.camera, "--camera")
     ids = range(0, len(builtin_table()), args.every)
     record = {"size": args.size, "camera": args.camera, "every": args.every, "seed": args.seed, "kinds": {}}
-    for kind in ("graycode", "dots"):
+    for kind in args.kinds.split(","):
         results = [measure(kind, tid, size, camera, args.seed) for tid in ids]
         record["kinds"][kind] = {
             "scenes": [scene_record(r) for r in results],

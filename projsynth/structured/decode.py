@@ -305,7 +305,8 @@ def decode_opencv(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Corresp
     p = patterns.params
     xp, yp, ok, noise, counts = decode_edges(stack, p["bits_x"], p["bits_y"], patterns.size)
     stats = {"edge_noise_px": round(noise, 4), **counts}
-    return _on_projector_grid(xp, yp, ok, window_noise(noise), patterns.size, stats)
+    # to the frame's edge, as OpenCV's own decoder, whose integer codes reach every pixel the camera sees
+    return _on_projector_grid(xp, yp, ok, window_noise(noise), patterns.size, stats, to_frame_edge=True)
 
 
 # --- graycode ---------------------------------------------------------------------------------------
@@ -318,11 +319,17 @@ def decode_graycode(patterns: PatternSet, stack: dict[str, np.ndarray]) -> Corre
 
 
 def _on_projector_grid(
-    xp: np.ndarray, yp: np.ndarray, ok: np.ndarray, noise: float, size: tuple[int, int], stats: dict
+    xp: np.ndarray,
+    yp: np.ndarray,
+    ok: np.ndarray,
+    noise: float,
+    size: tuple[int, int],
+    stats: dict,
+    to_frame_edge: bool = False,
 ) -> Correspondence:
     """Camera -> projector positions (``(Hc, Wc)``, noise in projector px) to the correspondence on the
     projector's ``size`` grid (:func:`~projsynth.structured.invert.invert_map`), with ``stats`` and counts."""
-    flow, valid = invert_map(xp, yp, ok, size, noise)
+    flow, valid = invert_map(xp, yp, ok, size, noise, to_frame_edge)
     counts = {
         "camera_pixels_decoded": int(ok.sum()),
         "camera_pixels": int(ok.size),

@@ -14,11 +14,13 @@ depend on the pixel offset ``o`` only, never on the camera position, so the fit 
 
 The window starts as wide as the decode noise asks (``window_sigma``); pixels whose fit fails there
 (curvature, a fold, a hole) are fitted again in windows 1.5x narrower, down to ``SIGMA_RANGE[0]``.
-A projector pixel is valid where the samples surround it (weighted centroid within ``0.35 sigma``,
-smallest spread ``>= 0.3 sigma^2``: interpolation, not extrapolation, so a pixel whose camera position
-is outside the frame is not claimed), the fit is consistent (RMS residual below
+A projector pixel is valid where the samples surround it (weighted centroid within ``MAX_CENTROID
+sigma``, smallest spread ``>= MIN_SPREAD sigma^2``: interpolation, not extrapolation, so a pixel whose
+camera position is outside the frame is not claimed), the fit is consistent (RMS residual below
 ``max(MAX_RESIDUAL_PX, 3x the median)``: a fold or a mix of two surfaces fails) and its camera
-position lies in the frame ``[0, Wc-1] x [0, Hc-1]``.
+position lies in the frame ``[0, Wc-1] x [0, Hc-1]``. With ``to_frame_edge`` the centroid is measured
+from where the window's own centroid lies over the projector frame (:func:`frame_centroid`): the frame's
+outermost pixels, whose samples can only lie on its inner side, are claimed too.
 """
 
 from __future__ import annotations
@@ -27,8 +29,11 @@ import cv2
 import numpy as np
 
 MAX_RESIDUAL_PX = 0.5
+MAX_CENTROID = 0.35  # samples' weighted centroid from where the frame's pixels would put it / sigma
+MIN_SPREAD = 0.3  # smallest eigenvalue of the samples' spread / sigma^2
 TARGET_NOISE_PX = 0.015  # aim of the window size: decode noise / sqrt(effective samples)
 SIGMA_RANGE = (0.7, 3.0)  # window (Gaussian sigma, projector px)
+WINDOW_RADIUS = 2.5  # Gaussian windows are cut at this many sigma
 
 
 def window_sigma(noise_px: float, density: float) -> float:
@@ -43,7 +48,12 @@ def window_sigma(noise_px: float, density: float) -> float:
 
 
 def invert_map(
-    xp: np.ndarray, yp: np.ndarray, ok: np.ndarray, size: tuple[int, int], noise_px: float = 0.0
+    xp: np.ndarray,
+    yp: np.ndarray,
+    ok: np.ndarray,
+    size: tuple[int, int],
+    noise_px: float = 0.0,
+    to_frame_edge: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The projector -> camera flow of a decoded camera -> projector map.
 
@@ -51,6 +61,8 @@ def invert_map(
         xp, yp, ok: ``(Hc, Wc)``: the projector position each camera pixel sees, and where it is known.
         size: the projector's ``(H, W)``.
         noise_px: typical noise of ``xp``/``yp`` (projector px); sets the window (``window_sigma``).
+        to_frame_edge: also claim the projector frame's outermost pixels, whose samples can only lie on
+            its inner side: their centroid is measured from where the frame's own pixels would put it.
 
     Returns:
         ``(flow, valid)``: ``(H, W, 2)`` float32 camera px minus projector px (0 where not valid) and
@@ -69,7 +81,8 @@ def invert_map(
     flow, valid = np.zeros((h, w, 2), np.float32), np.zeros((h, w), bool)
     sigma, limit = window_sigma(noise_px, density), None
     while True:  # where the widest window fails (curvature, a fold, an edge), narrower ones may pass
-        f, v, limit = _fit(_window_moments(m, sigma), sigma, size, ok.shape, limit)
+        centre = frame_centroid(size, sigma) if to_frame_edge else (0.0, 0.0)
+        f, v, limit = _fit(_window_moments(m, sigma), sigma, size, ok.shape, limit, centre)
         new = v & ~valid
         flow[new], valid[new] = f[new], True
         if sigma <= SIGMA_RANGE[0]:
@@ -100,7 +113,7 @@ def _bin_moments(index, dx, dy, fx, fy, size: tuple[int, int]) -> dict[str, np.n
 
 def _window_moments(m: dict[str, np.ndarray], sigma: float) -> dict[str, np.ndarray]:
     """The Gaussian-weighted moments of the fit at every pixel ``X`` (offsets taken from ``X``)."""
-    r = int(np.ceil(2.5 * sigma))
+    r = int(np.ceil(WINDOW_RADIUS * sigma))
     t = np.arange(-r, r + 1, dtype=np.float64)
     g = np.exp(-t * t / (2 * sigma * sigma))
     k0, k1, k2 = g, g * t, g * t * t
@@ -142,11 +155,35 @@ def _window_moments(m: dict[str, np.ndarray], sigma: float) -> dict[str, np.ndar
     }
 
 
-def _fit(s: dict[str, np.ndarray], sigma: float, size: tuple[int, int], cam: tuple[int, int], limit: float | None):  # noqa: ANN202
+def frame_centroid(size: tuple[int, int], sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(ex, ey)``, ``(H, W)`` each: from each pixel of a frame of ``size``, the centroid of a Gaussian window
+    of ``sigma`` (radius ``2.5 sigma``) over the frame's own pixels: 0 inside, towards the inside within a
+    window of the frame's border, where samples can only lie on one side."""
+    r = int(np.ceil(WINDOW_RADIUS * sigma))
+    t = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-t * t / (2 * sigma * sigma))
+    frame = np.ones(size)
+
+    def conv(kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        return cv2.sepFilter2D(frame, cv2.CV_64F, kx, ky, borderType=cv2.BORDER_CONSTANT)
+
+    weight = conv(g, g)
+    return conv(g * t, g) / weight, conv(g, g * t) / weight
+
+
+def _fit(  # noqa: ANN202
+    s: dict[str, np.ndarray],
+    sigma: float,
+    size: tuple[int, int],
+    cam: tuple[int, int],
+    limit: float | None,
+    centre: tuple[np.ndarray | float, np.ndarray | float],
+):
     """Solve the 3 x 3 weighted least squares per pixel and apply the validity rules (module docstring).
 
     ``limit``: the residual limit (None: ``max(MAX_RESIDUAL_PX, 3x the median residual)`` of this fit,
-    returned for the narrower windows)."""
+    returned for the narrower windows). ``centre``: where the samples' centroid should lie, from each pixel
+    (:func:`_frame_centroid`, or 0)."""
     h, w = size
     hc, wc = cam
     cand = np.nonzero(s["n"].ravel() >= 4)[0]
@@ -160,7 +197,8 @@ def _fit(s: dict[str, np.ndarray], sigma: float, size: tuple[int, int], cam: tup
     mx, my = g["dx"] / g["w"], g["dy"] / g["w"]
     cxx, cxy, cyy = g["dxx"] / g["w"] - mx * mx, g["dxy"] / g["w"] - mx * my, g["dyy"] / g["w"] - my * my
     spread = 0.5 * (cxx + cyy) - np.hypot(0.5 * (cxx - cyy), cxy)  # smallest eigenvalue of the spread
-    good = (np.hypot(mx, my) <= 0.35 * sigma) & (spread >= 0.3 * sigma * sigma)
+    ex, ey = (np.broadcast_to(c, size).ravel()[cand] for c in centre)
+    good = (np.hypot(mx - ex, my - ey) <= MAX_CENTROID * sigma) & (spread >= MIN_SPREAD * sigma * sigma)
     A[~good] = np.eye(3)
     beta_x = np.linalg.solve(A, bx[..., None])[..., 0]
     beta_y = np.linalg.solve(A, by[..., None])[..., 0]
