@@ -66,6 +66,7 @@ PICTURES = (
 ONE_SIDED = ("astronaut", "coffee", "rocket")
 SHAPES = ("bend", "dome", "lens", "fold")
 ALBEDOS = ("plain", "stripes", "plaster", "brick")
+MORE_ALBEDOS = ("plaid",)  # only asked for by --albedo (the rotation above stays as recorded)
 RESPONSES = ("gamma", "s-curve", "linear")
 AMBIENTS = (0.0, 0.08, 0.25, 0.5)  # ambient light on the wall, relative to the projector's white
 
@@ -167,6 +168,11 @@ def albedo(kind: str, rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     elif kind == "plaster":
         a = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 6)
         a = 0.75 + 0.2 * a / np.abs(a).max()
+    elif kind == "plaid":  # a woven tartan: dark and light bands crossing at two periods, hard-edged
+        period, a = rng.uniform(24, 48), np.zeros((h, w), np.float32)
+        for axis in (x, y):
+            a += 0.22 * (np.sin(2 * np.pi * axis / period) > 0.3) + 0.12 * (np.sin(2 * np.pi * axis / (period / 3)) > 0)
+        a = 0.2 + a
     elif kind == "brick":
         a = 0.35 + 0.65 * picture("brick", h, w)[..., 0].astype(np.float32) / 255
     else:
@@ -353,7 +359,7 @@ def main() -> None:
     ap.add_argument("--limit", type=int, default=0, help="only the first N pairs (0: all)")
     ap.add_argument("--predict-args", default="", help="extra options for projreg predict, e.g. '--fast'")
     ap.add_argument("--shape", choices=SHAPES, help="every pair on this surface (default: they rotate)")
-    ap.add_argument("--albedo", choices=ALBEDOS, help="every pair on this wall (default: they rotate)")
+    ap.add_argument("--albedo", choices=ALBEDOS + MORE_ALBEDOS, help="every pair on this wall (default: they rotate)")
     ap.add_argument("--response", choices=RESPONSES, help="every pair through this camera response")
     ap.add_argument("--ambient", type=float, help="every pair under this ambient light (0: dark room)")
     ap.add_argument("--json", type=Path)

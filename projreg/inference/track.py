@@ -71,8 +71,9 @@ class Tracker:
         self.config = config or TrackConfig()
         cfg = self.refiner.config
         tc = self.config
-        light = {"views": tc.views, "polish": tc.polish, "from_surface": tc.from_surface}
-        self.follow = GeometricRefiner(cfg.with_sections(align=light)) if cfg.align.direct else self.refiner
+        light = {"views": tc.views, "polish": tc.polish, "from_surface": tc.from_surface} if cfg.align.direct else {}
+        # a tracked frame follows a registration whose capture was checked for a mirror: not checked again
+        self.follow = GeometricRefiner(cfg.with_sections(align=light, confidence={"mirror_side": None}))
         self.counts = dict.fromkeys(STEPS, 0)
         self.last = ""
         self.reset()

@@ -15,7 +15,13 @@ from .config import ConfidenceConfig
 
 
 def pixel_confidence(
-    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float, cfg: ConfidenceConfig
+    texture: np.ndarray,
+    ncc: np.ndarray,
+    residual: np.ndarray,
+    spread: np.ndarray,
+    radius: float,
+    cfg: ConfidenceConfig,
+    tensor: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-pixel confidence of a flow in [0, 1]: checks on the textured pixels, spread to their
     neighbourhood (the smooth surface model interpolates between them), nothing far from texture.
@@ -30,13 +36,17 @@ def pixel_confidence(
     multiplied by how much texture it holds (from ``cfg.sparse`` to ``cfg.dense``), and one of twice
     that sigma, which asks for more texture (from ``cfg.coarse_sparse``): the coarse one carries the
     verdict across a flat gap between verified textured regions, which the surface model interpolates;
-    a flat region far from any texture gets 0 whatever the flow.
+    a flat region far from any texture gets 0 whatever the flow. With ``tensor``, the result is
+    limited by how well the passing texture around the pixel fixes a position in both directions
+    (:func:`spanned`, over ``cfg.span_radii`` times ``radius``, the reach of the surface model's
+    coupling): along a lone edge or a set of parallel ones a flow can slide without failing any check.
 
     Args:
         texture: the projected image's texture weight in [0, 1] (absolute floor), float ``(H, W)``.
         ncc, residual, spread: float ``(H, W)`` as above.
         radius: Gaussian sigma of the fine neighbourhood, px.
         cfg: the pass marks' break points and the densities.
+        tensor: the projected image's gradient products ``(gx^2, gx gy, gy^2)``, float ``(H, W, 3)``.
 
     Returns:
         float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``.
@@ -45,11 +55,20 @@ def pixel_confidence(
     w = np.asarray(texture, np.float32)
     fine = neighbourhood(w, passed, radius, cfg.sparse, cfg.dense, cfg.shrunk_sigma)
     coarse = neighbourhood(w, passed, 2 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
-    return np.maximum(fine, coarse).astype(np.float32)
+    out = np.maximum(fine, coarse)
+    if tensor is not None:
+        out = out * spanned(tensor, w * passed, cfg.span_radii * radius, cfg)
+    return out.astype(np.float32)
 
 
 def gap_confidence(
-    texture: np.ndarray, ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, radius: float, cfg: ConfidenceConfig
+    texture: np.ndarray,
+    ncc: np.ndarray,
+    residual: np.ndarray,
+    spread: np.ndarray,
+    radius: float,
+    cfg: ConfidenceConfig,
+    tensor: np.ndarray | None = None,
 ) -> np.ndarray:
     """The checks' verdict carried across a wide flat gap: the pass marks (:func:`pixel_confidence`'s
     inputs) averaged at four times the sigma ``radius``, from a texture density of ``cfg.coarse_sparse``.
@@ -60,7 +79,8 @@ def gap_confidence(
     """
     passed = pass_marks(ncc, residual, spread, cfg)
     texture = np.asarray(texture, np.float32)
-    return neighbourhood(texture, passed, 4 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
+    gap = neighbourhood(texture, passed, 4 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
+    return gap if tensor is None else gap * spanned(tensor, texture * passed, cfg.span_radii * radius, cfg)
 
 
 def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
@@ -93,12 +113,45 @@ def neighbourhood(
         >>> round(float(c[20, 10]), 3), round(float(c[20, 35]), 3)
         (1.0, 0.0)
     """
-    h, w = texture.shape
+
+    def share(density: np.ndarray, agree: np.ndarray) -> np.ndarray:
+        return agree / np.maximum(density, 1e-6) * ramp(density, sparse, dense)
+
+    return averaged([texture, texture * passed], sigma, shrunk, share)
+
+
+def spanned(tensor: np.ndarray, weight: np.ndarray, sigma: float, cfg: ConfidenceConfig) -> np.ndarray:
+    """How well the texture around each pixel fixes a position in both directions, in [0, 1]: the
+    smaller eigenvalue of the ``weight``-weighted structure tensor (a Gaussian of ``sigma`` px over
+    ``tensor``'s gradient products, float ``(H, W, 3)``) over the larger, ramped from ``cfg.span_fail``
+    (0: one edge direction only, a slide along it unseen) to ``cfg.span_pass`` (1).
+
+    Example:
+        >>> cfg = ConfidenceConfig()
+        >>> t = np.zeros((32, 32, 3), np.float32); t[..., 0] = 1.0  # vertical edges only
+        >>> float(spanned(t, np.ones((32, 32), np.float32), 4.0, cfg).max())
+        0.0
+        >>> t[..., 2] = 1.0  # and horizontal ones
+        >>> float(spanned(t, np.ones((32, 32), np.float32), 4.0, cfg).min())
+        1.0
+    """
+
+    def ratio(xx: np.ndarray, xy: np.ndarray, yy: np.ndarray) -> np.ndarray:
+        half, root = (xx + yy) / 2, np.sqrt(((xx - yy) / 2) ** 2 + xy**2)
+        return ramp((half - root) / np.maximum(half + root, 1e-12), cfg.span_fail, cfg.span_pass)
+
+    w = np.asarray(weight, np.float32)
+    return averaged([w * tensor[..., k] for k in range(3)], sigma, cfg.shrunk_sigma, ratio)
+
+
+def averaged(maps: list[np.ndarray], sigma: float, shrunk: float, combine) -> np.ndarray:
+    """``combine`` of the ``maps`` (float ``(H, W)``) each blurred by a Gaussian of ``sigma`` px, at full
+    size: a sigma of twice ``shrunk`` px or more is applied on the grid shrunk ``sigma // shrunk`` times
+    (area averages) and ``combine``'s result brought back bilinearly (:func:`neighbourhood`)."""
+    h, w = maps[0].shape
     shrink = max(1, int(sigma // shrunk))
-    small = (max(1, w // shrink), max(1, h // shrink))
-    weights = [texture, texture * passed]
     if shrink > 1:
-        weights = [cv2.resize(a, small, interpolation=cv2.INTER_AREA) for a in weights]
-    density, agree = (gaussian(a, sigma / shrink) for a in weights)
-    out = agree / np.maximum(density, 1e-6) * ramp(density, sparse, dense)
+        small = (max(1, w // shrink), max(1, h // shrink))
+        maps = [cv2.resize(np.asarray(a, np.float32), small, interpolation=cv2.INTER_AREA) for a in maps]
+    out = combine(*(gaussian(np.asarray(a, np.float32), sigma / shrink) for a in maps))
     return out if shrink == 1 else cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)

@@ -143,6 +143,10 @@ class ConfidenceConfig:
     sparse: float = 0.05  # texture density at which the fine neighbourhood starts to count
     coarse_sparse: float = 0.1  # ... the coarse one (twice the radius) and the bridge's (four times)
     dense: float = 0.2  # texture density at which a neighbourhood counts fully
+    span_radii: float = 4.0  # the passing texture within this many radii of a pixel (Gaussian sigma) ...
+    span_fail: float = 0.03  # ... fixes no position along its edges when the smaller eigenvalue of its structure
+    # tensor is at most this share of the larger (edges of one direction: a flow may slide along them) ...
+    span_pass: float = 0.06  # ... and fixes it in both directions from this share on
     registered_above: float = 0.01  # a pair whose claimed share is below this is not registered ...
     registered_windows: float = 6.0  # ... nor one whose claim covers fewer NCC windows than this (0: none; area
     # pi (2 selection.ncc_sigma)^2 each): photos of another picture pass the checks by chance on up to 4 of them
@@ -155,6 +159,10 @@ class ConfidenceConfig:
     repeating_share: float = 0.5  # an unverified pair whose texture repeats this much is called a repeating pattern
     bridge: bool = True  # a registered answer also claims wide flat gaps where two models agree
     bridge_px: float = 1.0  # ... within this distance of its claimed pixels' homography
+    mirror_side: int | None = 256  # a registered pair's images, shrunk to this side, are checked for a mirrored
+    # capture (:mod:`~projreg.refine.handedness`; None: not checked) ...
+    mirror_inliers: int = 30  # ... which is mirrored when at least this many mirrored SIFT matches agree ...
+    mirror_ratio: float = 3.0  # ... and this many times as many as the direct matches do
 
 
 @dataclass(frozen=True)
@@ -236,6 +244,14 @@ class RefineConfig:
             raise ProjregError(
                 f"refine confidence.registered_windows must be >= 0, got {self.confidence.registered_windows}"
             )
+        co = self.confidence
+        if co.mirror_side is not None and co.mirror_side < MIN_SIDE:
+            raise ProjregError(f"refine confidence.mirror_side must be >= {MIN_SIDE} or None, got {co.mirror_side}")
+        if co.mirror_inliers < 4 or not co.mirror_ratio >= 1:
+            raise ProjregError(
+                "refine confidence.mirror_inliers must be >= 4 (a homography's points) and mirror_ratio >= 1, "
+                f"got {co.mirror_inliers}, {co.mirror_ratio}"
+            )
         for name in ("plane_margin", "plane_agree_px"):
             if not getattr(self.selection, name) >= 0:
                 raise ProjregError(f"refine selection.{name} must be >= 0, got {getattr(self.selection, name)}")
@@ -276,7 +292,9 @@ class Quality:
 # their square).
 # ``accurate``: every start on every view, the network at up to 1024 px, the winner re-aligned
 # directly. ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
-# the fit's pixel parameters halved, no detail level, periodicity test, albedo view or bridge. Their
+# the fit's pixel parameters halved, no detail level, albedo view or bridge, and the residual's pass marks
+# halved (1 px passes, 2 px fails: its smaller search leaves pixels 2-3 px off that pass the default's
+# marks; docs/history/2026-12-05-honest-claims.md). Their
 # figures: docs/results.md.
 ACCURATE = RefineConfig()
 BALANCED = ACCURATE.with_sections(
@@ -298,7 +316,7 @@ FAST = RefineConfig(
     surface=SurfaceConfig(robust_px=0.5, free_px=8.0, detail=False),
     search=SearchConfig(identity=False, sift=False, escalate_below=0.0),
     selection=SelectionConfig(ncc_sigma=3.5),
-    confidence=ConfidenceConfig(periodic=False, bridge=False),
+    confidence=ConfidenceConfig(bridge=False, residual_pass_px=1.0, residual_fail_px=2.0),
 )
 QUALITIES = {
     q.name: q

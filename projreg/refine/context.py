@@ -32,6 +32,7 @@ from ..geometry.splines import near_data_ramp
 from ..geometry.warp import compose, lands_inside, warp_back
 from ..prediction import CONFIDENT
 from .config import RefineConfig
+from .handedness import Features
 
 DisFlows = Callable[[list[tuple[np.ndarray, np.ndarray]]], list[np.ndarray]]  # DIS's flow of each image pair
 
@@ -59,10 +60,13 @@ class Projected:
     ``image``: the uint8 RGB image it was built from (a copy, to recognise it: :meth:`matches`);
     ``plain``/``normalised``: its gray image without and with local contrast normalisation; ``evidence``,
     ``share``, ``textured``, ``support``, ``step``, ``refit_step``: as :class:`PairContext`'s;
-    ``reference``: the local statistics the NCC maps compare with; ``weights``: each view's texture
+    ``reference``: the local statistics the NCC maps compare with; ``tensor``: the normalised image's
+    gradient products ``(gx^2, gx gy, gy^2)``, float32 ``(H, W, 3)``, which say along which directions its
+    texture fixes a position (:func:`~projreg.refine.confidence.spanned`); ``weights``: each view's texture
     weight, by view, filled as asked, and ``near`` the fine spline's data ramp of each
     (:meth:`PairContext.near_data`); ``repeats``: where the image repeats itself (None until the
-    refinement has measured it).
+    refinement has measured it); ``features``: its SIFT features for the handedness check (None until
+    measured, :mod:`~projreg.refine.handedness`).
     """
 
     image: np.ndarray
@@ -75,9 +79,11 @@ class Projected:
     step: int
     refit_step: int
     reference: LocalStats
+    tensor: np.ndarray
     weights: dict[str, np.ndarray] = field(default_factory=dict)
     near: dict[str, np.ndarray] = field(default_factory=dict)
     repeats: np.ndarray | None = None
+    features: Features | None = None
 
     @classmethod
     def build(cls, projected: np.ndarray, config: RefineConfig) -> Projected:
@@ -99,6 +105,7 @@ class Projected:
             fit_step(h, w, config.fit.fit_points),
             fit_step(h, w, config.fit.refit_points),
             LocalStats(normalised, config.selection.ncc_sigma, im.shrunk_sigma),
+            gradient_products(normalised),
         )
 
     def matches(self, projected: np.ndarray) -> bool:
@@ -117,27 +124,35 @@ class PairContext:
     pixels and of those near enough to texture to be measured; ``step``: the fits' grid step, ``refit_step``
     the refits' (``fit.refit_points``);
     ``pyramids``: each view's pyramid for the direct alignment; ``memo``: each candidate's check maps,
-    by key (scored once, read again by the confidence).
+    by key (scored once, read again by the confidence); ``scale``: the pair's own pixels per pixel of
+    these images, where they are the pair shrunk and its verdict is read here (the checks' distances are
+    the user's pixels: :func:`~projreg.refine.verify.confidence`).
     """
 
     config: RefineConfig
     side: Projected
     plain: tuple[np.ndarray, np.ndarray]
     normalised: tuple[np.ndarray, np.ndarray]
+    scale: float = 1.0
     pyramids: dict[str, dict[int, Level]] = field(default_factory=dict)
     memo: dict[str, np.ndarray] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @classmethod
     def build(
-        cls, projected: np.ndarray, captured: np.ndarray, config: RefineConfig, side: Projected | None = None
+        cls,
+        projected: np.ndarray,
+        captured: np.ndarray,
+        config: RefineConfig,
+        side: Projected | None = None,
+        scale: float = 1.0,
     ) -> PairContext:
         """The context of a pair of uint8 RGB ``(H, W, 3)`` images; ``side``: the projected image's, when
-        already built (:meth:`Projected.matches`)."""
+        already built (:meth:`Projected.matches`); ``scale``: as the class docstring."""
         side = side or Projected.build(projected, config)
         gray = to_gray(captured)
         normalised = normalize_contrast(gray, config.images.contrast_sigma, config.images.shrunk_sigma)
-        return cls(config, side, (side.plain, gray), (side.normalised, normalised))
+        return cls(config, side, (side.plain, gray), (side.normalised, normalised), scale=scale)
 
     @property
     def evidence(self) -> np.ndarray:
@@ -266,3 +281,10 @@ class PairContext:
             zero = np.zeros_like(fwd)
             self.memo[memo_key] = np.maximum(flow_distance(fwd, zero), flow_distance(compose(bwd, fwd), zero))
         return self.memo[memo_key]
+
+
+def gradient_products(gray: np.ndarray) -> np.ndarray:
+    """``(gx^2, gx gy, gy^2)`` of a float gray image (Scharr's derivatives), float32 ``(H, W, 3)``."""
+    gx = cv2.Scharr(gray, cv2.CV_32F, 1, 0)
+    gy = cv2.Scharr(gray, cv2.CV_32F, 0, 1)
+    return np.stack([gx * gx, gx * gy, gy * gy], axis=-1)

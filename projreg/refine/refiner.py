@@ -77,6 +77,7 @@ from .candidates import (
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
 from .evidence import registers, repeat_jobs, repeats_in, unverified
+from .handedness import Features, Handedness, handedness
 from .search import Search
 from .selection import rivals, select
 from .stages import gather, stage, submit
@@ -141,11 +142,25 @@ class GeometricRefiner:
         flow = np.asarray(flow, np.float32)
         if self._searched_shrunk(h, w):
             return self._predict_shrunk(projected, captured, flow, identity, finer)
+        return self._predict_at(projected, captured, flow, identity, finer)
+
+    def _predict_at(
+        self,
+        projected: np.ndarray,
+        captured: np.ndarray,
+        flow: np.ndarray,
+        identity: bool,
+        finer: Callable[[], np.ndarray] | None,
+        scale: float = 1.0,
+    ) -> tuple[Prediction, RefineInfo]:
+        """:meth:`predict_info` on the pair as given; ``scale``: the user's pixels per pixel of it, where it is
+        the user's pair shrunk and verified here (:class:`~projreg.refine.context.PairContext`)."""
+        h, w = projected.shape[:2]
         none = np.zeros((h, w), np.float32)
         if min(h, w) < MIN_SIDE:
             return Prediction(flow, none > 0, False, "too small", none), RefineInfo("skipped", "", {}, none, 0.0)
         fitting = self._workers.submit(network_starts, self.config, flow)  # beside the context
-        ctx = PairContext.build(projected, captured, self.config, self._projected(projected))
+        ctx = PairContext.build(projected, captured, self.config, self._projected(projected), scale)
         if ctx.share < self.config.images.textureless_below:
             why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
             pred = Prediction(np.zeros_like(flow), none > 0, False, why, none)
@@ -174,6 +189,7 @@ class GeometricRefiner:
         # ... on the pool, each window size a job, beside the network's start
         jobs = repeat_jobs(ctx.normalised[0], *periodic) if measure else []
         pending = [self._workers.submit(repeats_in, *job) for job in jobs]
+        mirror = self._workers.submit(self._handedness, ctx) if conf_cfg.mirror_side is not None else None
         network, first, usable = fitting.result()
         views, direct = list(ctx.views()), cfg.align.direct
         first_views = list(cfg.align.views) if direct else [v for v in views if v in cfg.search.first_views]
@@ -185,7 +201,7 @@ class GeometricRefiner:
             stages = ["network"] + (["more starts"] if more else [])
         else:
             cands, stages = stage(ctx, self._workers, first, first_views, direct), ["network"]
-        search = Search(ctx, network, cands, {}, stages)
+        search = Search(ctx, network, cands, {}, stages, mirror=mirror)
         if measure:
             repeats = np.zeros(ctx.shape, bool)
             for job in pending:
@@ -259,6 +275,10 @@ class GeometricRefiner:
         claimed = conf >= CONFIDENT
         verified = claimed.mean() >= cfg.registered_above  # some region verified: the search's answer stands
         why = "" if self._registers(claimed) else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
+        if search.mirror is not None and not why:
+            why = mirrored(search.mirror.result(), cfg.mirror_inliers, cfg.mirror_ratio)
+        elif search.mirror is not None:
+            search.mirror.cancel()  # not asked: the pair is not registered anyway
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
             conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers)
             claimed = conf >= CONFIDENT
@@ -272,6 +292,14 @@ class GeometricRefiner:
         # a registration the user can rely on (the confidence map in RefineInfo keeps them)
         pred = Prediction(best.flow, claimed if not why else np.zeros_like(claimed), not why, why, conf)
         return pred, RefineInfo(best.hypothesis, best.label, scores, conf, ctx.share, tuple(search.stages))
+
+    def _handedness(self, ctx: PairContext) -> Handedness:
+        """The pair's direct and mirrored SIFT consensus (:mod:`~projreg.refine.handedness`) on its images
+        shrunk to ``confidence.mirror_side``; the projected image's features are kept with its side."""
+        side = self.config.confidence.mirror_side
+        if ctx.side.features is None:
+            ctx.side.features = Features.of(ctx.side.plain, side)
+        return handedness(ctx.side.features, Features.of(ctx.plain[1], side))
 
     def _registers(self, claimed: np.ndarray) -> bool:
         """Whether ``claimed`` registers the pair (:func:`~projreg.refine.evidence.registers`)."""
@@ -355,7 +383,8 @@ class GeometricRefiner:
         finer: Callable[[], np.ndarray] | None,
     ) -> tuple[Prediction, RefineInfo]:
         """:meth:`predict_info` on the pair shrunk to ``images.max_side``; flow and confidence resized back
-        (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``. With
+        (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``, its checks'
+        distances read in the pair's own pixels (:func:`~projreg.refine.verify.checks`). With
         ``images.verify_full`` the search's answer is verified again at the pair's own size instead
         (:meth:`_at_full_size`): its confidence and claim are the full-size checks'."""
         side = self.config.images.max_side
@@ -367,8 +396,9 @@ class GeometricRefiner:
                 fitting = self._workers.submit(network_starts, self.config, resize_flow(flow, small0.shape))
                 search = self._search(ctx, small0, small1, fitting, identity, smaller)
                 return self._verdict(self._at_full_size(search, projected, captured))
-        pred, info = self.predict_info(small0, small1, resize_flow(flow, small0.shape), identity, smaller)
         h, w = projected.shape[:2]
+        scale = max(h, w) / max(small0.shape[:2])  # the verdict is read on the shrunk pair: its checks' tolerance
+        pred, info = self._predict_at(small0, small1, resize_flow(flow, small0.shape), identity, smaller, scale)
         conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
         claimed = (conf >= CONFIDENT) if pred.registered else np.zeros((h, w), bool)
         pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed, confidence=conf)
@@ -387,5 +417,17 @@ class GeometricRefiner:
         if repeats is not None:
             repeats = cv2.resize(repeats.astype(np.uint8), shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0
         out = Search(ctx, network, cands, dict(search.scores), search.stages + ["full size"], repeats, best)
+        out.mirror = search.mirror
         out.conf = self.confidence(ctx, cands, out.scores, best, repeats)
         return out
+
+
+def mirrored(hand: Handedness, min_inliers: int, ratio: float) -> str:
+    """Why a pair whose capture is its projection mirrored is not registered (``""``: it is not mirrored)."""
+    if not hand.is_mirrored(min_inliers, ratio):
+        return ""
+    return (
+        f"mirrored: the captured image is the projected one mirrored ({hand.mirrored} SIFT matches agree on a "
+        f"mirror, {hand.direct} on a direct map): turn the camera's mirroring off, or flip the captured images "
+        "(a rear-projection screen filmed from the front)"
+    )

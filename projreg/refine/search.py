@@ -18,8 +18,9 @@ from .workers import Workers
 @dataclass
 class Search:
     """One pair's search so far: its context, the network's start, the candidates in the order tried,
-    their scores, the stages run, the periodicity map, the current winner and its confidence, and the
-    winner's re-alignment when it was started ahead (:meth:`realign_ahead`) with the event that stops it."""
+    their scores, the stages run, the periodicity map, the current winner and its confidence, the
+    winner's re-alignment when it was started ahead (:meth:`realign_ahead`) with the event that stops it,
+    and the handedness check running beside the search."""
 
     ctx: PairContext
     network: Start
@@ -30,6 +31,7 @@ class Search:
     best: Candidate | None = None
     conf: np.ndarray | None = None
     ahead: tuple[Candidate, Future, Event] | None = None
+    mirror: Future | None = None  # the pair's handedness (:mod:`~projreg.refine.handedness`), on the pool
 
     def realign_ahead(self, workers: Workers) -> None:
         """Start the winner's re-alignment on the pool (the one of an earlier winner stopped); one already

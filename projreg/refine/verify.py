@@ -30,7 +30,8 @@ def confidence(
     """Per-pixel confidence in [0, 1] of candidate ``best`` (:func:`~projreg.refine.confidence.pixel_confidence`
     of :func:`checks`); 0 where the projected image repeats itself (``repeats``)."""
     cfg = ctx.config.confidence
-    conf = pixel_confidence(ctx.evidence, *checks(ctx, cands, scores, best, dis), cfg.radius * max(ctx.shape), cfg)
+    maps, radius = checks(ctx, cands, scores, best, dis), cfg.radius * max(ctx.shape)
+    conf = pixel_confidence(ctx.evidence, *maps, radius, cfg, ctx.side.tensor)
     return conf if repeats is None else np.where(repeats, 0.0, conf).astype(np.float32)
 
 
@@ -38,7 +39,9 @@ def checks(
     ctx: PairContext, cands: list[Candidate], scores: dict[str, float], best: Candidate, dis: DisFlows
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Candidate ``best``'s check maps: local NCC, forward-backward residual (px, DIS's flows ``dis``) and
-    the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`)."""
+    the rivals' spread (px, :func:`~projreg.refine.selection.ambiguity`); distances in the pair's own pixels
+    (``ctx.scale`` times the context's, where its images are the pair shrunk): a claim's tolerance is the
+    user's, whatever grid it was verified on."""
     margin = ctx.config.confidence.rival_margin
     ncc = ctx.ncc(best.key, best.flow)
     residual = ctx.round_trip(dis, best.key, best.flow)
@@ -46,7 +49,8 @@ def checks(
     key = f"spread:{best.key}:" + ",".join(c.key for c in rivals(cands, scores, best, margin))
     if key not in ctx.memo:
         ctx.memo[key] = ambiguity(ctx, cands, scores, best, ncc, margin)
-    return ncc, residual, ctx.memo[key]
+    spread = ctx.memo[key]
+    return (ncc, residual, spread) if ctx.scale == 1 else (ncc, ctx.scale * residual, ctx.scale * spread)
 
 
 def bridged(
@@ -71,7 +75,8 @@ def bridged(
         fit_homography, best.flow, ctx.refit_step, fit.ransac_px, conf >= CONFIDENT, fit.max_area_ratio, fit.min_hull
     )
     radius = cfg.confidence.radius * max(h, w)
-    gap = gap_confidence(ctx.evidence, *checks(ctx, cands, scores, best, workers.dis_flows), radius, cfg.confidence)
+    maps = checks(ctx, cands, scores, best, workers.dis_flows)
+    gap = gap_confidence(ctx.evidence, *maps, radius, cfg.confidence, ctx.side.tensor)
     found = fitting.result()
     if found is None:
         return conf

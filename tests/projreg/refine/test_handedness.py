@@ -1,0 +1,49 @@
+"""Handedness: SIFT's descriptors of a mirrored image, and the mirrored-capture check built on them."""
+
+import cv2
+import numpy as np
+import pytest
+
+from projreg.refine.handedness import MIRRORED, Features, handedness
+
+
+@pytest.fixture(scope="module")
+def gray():
+    skimage = pytest.importorskip("skimage.data")
+    return cv2.resize(cv2.cvtColor(skimage.astronaut(), cv2.COLOR_RGB2GRAY), (256, 192), interpolation=cv2.INTER_AREA)
+
+
+def test_the_permutation_gives_the_descriptor_sift_computes_in_the_mirrored_image(gray):
+    """A keypoint mirrored left-right (its angle reflected) has, in the mirrored image, the descriptor that
+    the permutation makes of its own: far closer than to the unpermuted one, or to another keypoint's."""
+    sift = cv2.SIFT_create()
+    keypoints, descriptors = sift.detectAndCompute(gray, None)
+    w = gray.shape[1]
+    mirrored = [cv2.KeyPoint(w - 1 - k.pt[0], k.pt[1], k.size, (180 - k.angle) % 360) for k in keypoints]
+    kept, computed = sift.compute(np.ascontiguousarray(gray[:, ::-1]), mirrored)
+    assert len(kept) == len(keypoints)
+    permuted = np.linalg.norm(descriptors[:, MIRRORED] - computed, axis=1)
+    plain = np.linalg.norm(descriptors - computed, axis=1)
+    other = np.linalg.norm(np.roll(descriptors[:, MIRRORED], 1, axis=0) - computed, axis=1)
+    assert np.median(permuted) < 0.4 * np.median(plain)  # 0.31 here: interpolation differs at small scales
+    assert np.median(permuted) < 0.4 * np.median(other)
+
+
+@pytest.mark.parametrize(
+    "view, mirrored",
+    [
+        (lambda g: g[:, ::-1], True),  # left-right
+        (lambda g: g[::-1], True),  # up-down
+        (lambda g: g[::-1, ::-1], False),  # turned 180 degrees: a camera upside down, not a mirror
+        (lambda g: g, False),
+    ],
+)
+def test_a_mirrored_capture_is_told_from_a_turned_one(gray, view, mirrored):
+    hand = handedness(Features.of(gray, 256), Features.of(np.ascontiguousarray(view(gray)), 256))
+    assert hand.is_mirrored(30, 3.0) == mirrored, hand
+
+
+def test_pictures_without_features_are_not_mirrored():
+    flat = np.full((64, 80), 128, np.uint8)
+    hand = handedness(Features.of(flat, 256), Features.of(flat, 256))
+    assert (hand.direct, hand.mirrored) == (0, 0)
