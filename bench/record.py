@@ -225,8 +225,8 @@ SETS = (
         "Pairs rendered by a rig written from scratch in `bench/external_rig.py` (numpy and OpenCV only): "
         "scikit-image's pictures (14 full frame, 3 on the left 45 % of the frame, one almost blank page) "
         "after a homography and a bend, dome, lens or fold, on a painted, plaster or brick wall, through "
-        "gamma, S-curve or clipped camera responses; 384 x 512; the third run a plaid cloth under a projection "
-        "as faint as the room's light (the wall's pattern dominant). The pipeline is `projreg predict` on the "
+        "gamma, S-curve or clipped camera responses; 384 x 512; the third run a plaid cloth whose pattern rivals "
+        "the projected picture's. The pipeline is `projreg predict` on the "
         "two folders, as a user runs it, against SIFT + RANSAC and DIS medium on the same pairs. The "
         "script reports per-pair means, no pooled EPE.",
         (),
@@ -245,9 +245,9 @@ SETS = (
             ),
             Run(
                 "external-plaid.json",
-                f"python bench/external_rig.py --out {_B}/external/plaid --albedo plaid --ambient 1.0 "
+                f"python bench/external_rig.py --out {_B}/external/plaid --albedo plaid --ambient 0.25 "
                 f"--json {RESULTS / 'external-plaid.json'}",
-                "a faint projection on a plaid cloth: room light as bright as the projector's white",
+                "a plaid cloth, room light a quarter of the projector's white",
             ),
         ),
     ),
