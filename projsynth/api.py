@@ -25,18 +25,25 @@ from .structured.response import Response, fit_response
 
 class Dataset(Sequence[dict]):
     """A dataset directory's samples by index, as dicts of arrays (``ShardReader.read``): ``projected``,
-    ``captured``, ``flow``, ``valid``, ``params``. Use it in a ``with`` block, or :meth:`close` it."""
+    ``captured``, ``flow``, ``valid``, ``params``; a slice gives a list of them, as a list's would. Use it
+    in a ``with`` block, or :meth:`close` it."""
 
     def __init__(self, path: str | Path) -> None:
+        if not isinstance(path, str | Path):
+            raise TypeError(f"path: expected a dataset directory (str or Path), got {type(path).__name__}")
         self.reader = ShardReader(Path(path))
 
     def __len__(self) -> int:
         return len(self.reader)
 
-    def __getitem__(self, k: int) -> dict:  # type: ignore[override]
+    def __getitem__(self, k: int | slice) -> dict | list[dict]:  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        if isinstance(k, bool) or not isinstance(k, int | np.integer):
+            raise TypeError(f"sample index: expected an integer or a slice, got {type(k).__name__} {k!r}")
         if not -len(self) <= k < len(self):
             raise IndexError(f"sample {k} of a dataset of {len(self)}")
-        return self.reader.read(k % len(self))
+        return self.reader.read(int(k) % len(self))
 
     def __iter__(self) -> Iterator[dict]:
         return (self[k] for k in range(len(self)))

@@ -93,3 +93,31 @@ def test_opencv_photos_with_patterns_and_inverses_swapped_are_refused_as_decode_
         photos[i], photos[i + 1] = photos[i + 1], photos[i]
     with pytest.raises(ProjsynthError, match=r"^patterns 96x100: .* beyond it; .* of this pattern set and in its"):
         projsynth.decode_photos(patterns, photos)
+
+
+def test_a_dataset_takes_integers_and_slices_and_refuses_other_keys(tmp_path):
+    """A ``Sequence`` takes an index or a slice (a list of samples, as a list's slice); anything else, and a
+    path that is not one, gets our message naming it, not a formatting or comparison error from inside."""
+    from projsynth.api import open_dataset
+    from projsynth.dataset.generate import generate
+    from projsynth.dataset.plan import resolve_plan
+
+    root = tmp_path / "d"
+    generate(
+        resolve_plan(size=(64, 80), seed=0, split="train", pairs=1, transforms="0,26,105", blend="paper"),
+        root,
+        shard_size=8,
+    )
+    with open_dataset(root) as data:
+        assert len(data) >= 3
+        ids = [s["params"]["sample_id"] for s in data[0:2]]
+        assert ids == [data[0]["params"]["sample_id"], data[1]["params"]["sample_id"]]
+        assert [s["params"]["sample_id"] for s in data[::-1]][0] == data[-1]["params"]["sample_id"]
+        assert data[np.int64(1)]["params"]["sample_id"] == ids[1]
+        for bad in (1.0, "1", True, None):
+            with pytest.raises(TypeError, match="sample index: expected an integer or a slice"):
+                data[bad]
+        with pytest.raises(IndexError, match="of a dataset of"):
+            data[len(data)]
+    with pytest.raises(TypeError, match="path: expected a dataset directory"):
+        open_dataset(None)
