@@ -26,7 +26,7 @@ Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the pr
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,17 +40,14 @@ from projsynth.utils.files import write_atomic_all
 from projsynth.utils.images import list_images, load_image, png_bytes
 
 from ..errors import ProjregError
-from ..geometry.frames import register_any_size
 from ..model.checkpoint import resolve_checkpoint
-from ..prediction import CONFIDENT, Prediction
+from ..prediction import CONFIDENT
 from ..refine.config import DEFAULT_QUALITY
 from ..refine.config import quality as resolve_quality
-from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
-from .photos import normalise_capture
-from .register import Photos, register_pairs, rig_photos
-from .runtime import DEFAULT_BACKEND, OnnxNetwork, TorchNetwork, finer_flow, flows_resized, open_network
-from .track import Tracker
+from .pipeline import Pipeline
+from .register import Photos, Registration, rig_photos
+from .runtime import DEFAULT_BACKEND
 
 
 @dataclass(frozen=True)
@@ -188,7 +185,7 @@ def predict(
     """
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
-    setting = resolve_quality(quality)
+    resolve_quality(quality)  # an unknown quality refused before any file is read
     if batch_size < 1:
         raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
     if max_flow is not None:
@@ -213,53 +210,28 @@ def predict(
         + ([("--response", Path(response))] if response else []),
     )
     photos = _photos(jobs[: 1 if track else len(jobs)], white, black, response)
-    net = open_network(weights, backend=backend, device=device, precision=precision)
-    max_side, finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
-    refiner = GeometricRefiner(setting.refine) if refine else None
+    pipeline = Pipeline(
+        weights, quality=quality, device=device, precision=precision, backend=backend, refine=refine, max_side=max_side
+    )
     if track:
-        return _track(jobs, net, refiner, (max_side, finer_side), progress, max_flow, photos)
+        _require_one_size(jobs)
+        frames = ((_load(j.projected), _load(j.captured)) for j in jobs)
+        regs = pipeline.track(frames, photos, where="--track frames")
+    else:
+        regs = _batches(pipeline, jobs, batch_size, photos)
     results = []
-    for start in range(0, len(jobs), batch_size):
-        chunk = jobs[start : start + batch_size]
-        pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
-        regs = register_pairs(net, refiner, pairs, max_side, batch_size, finer_side, photos)
-        for job, reg in zip(chunk, regs, strict=True):
-            pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
-            results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size, photos=photos))
-            if progress:
-                progress(len(results), len(jobs))
-    return results
-
-
-def _track(
-    jobs: list[Job],
-    net: TorchNetwork | OnnxNetwork,
-    refiner: GeometricRefiner,
-    sides: tuple[int, int | None],
-    progress: Callable[[int, int], None] | None,
-    max_flow: float | None,
-    photos: Photos | None,
-) -> list[Predicted]:
-    """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`); the
-    network at ``sides`` (first, on escalation); every captured frame with the surface divided out by
-    ``photos``."""
-
-    def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
-        finer = finer_flow(net, img0, img1, sides[1])
-        return refiner.predict_info(img0, img1, flows_resized(net, [(img0, img1)], sides[0])[0], finer=finer)[0]
-
-    _require_one_size(jobs)
-    tracker = Tracker(register, refiner)
-    results = []
-    for job in jobs:
-        img0, img1 = _load(job.projected), _load(job.captured)
-        if photos is not None:
-            img1 = normalise_capture(img1, *photos)
-        pred = register_any_size(tracker, img0, img1)
-        results.append(_write(job, pred, True, max_flow, tracker.last, img1.shape[:2], photos))
+    for job, reg in zip(jobs, regs, strict=True):
+        results.append(_write(job, reg, refine, max_flow, photos))
         if progress:
             progress(len(results), len(jobs))
     return results
+
+
+def _batches(pipeline: Pipeline, jobs: list[Job], batch_size: int, photos: Photos | None) -> Iterator[Registration]:
+    """The jobs' pairs registered ``batch_size`` at a time, each batch read when the last one is written."""
+    for start in range(0, len(jobs), batch_size):
+        chunk = jobs[start : start + batch_size]
+        yield from pipeline.register([(_load(j.projected), _load(j.captured)) for j in chunk], batch_size, photos)
 
 
 def _require_one_size(jobs: list[Job]) -> None:
@@ -295,42 +267,33 @@ def _photos(jobs: list[Job], white: Path | None, black: Path | None, response: P
     return photos
 
 
-def _write(
-    job: Job,
-    pred: Prediction,
-    refined: bool,
-    max_flow: float | None,
-    tracking: str = "",
-    camera: tuple[int, int] | None = None,
-    photos: Photos | None = None,
-) -> Predicted:
+def _write(job: Job, reg: Registration, refined: bool, max_flow: float | None, photos: Photos | None) -> Predicted:
     """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
-    written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``); ``camera``:
-    the captured image's ``(H, W)``, the frame the flow's positions are in (header ``camera_size``);
-    ``photos``: the rig's photos the captured image was divided by (header ``photos``)."""
-    valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
+    written. The header says whether the pair registered, the frame the flow's positions are in
+    (``camera_size``), how the tracker registered a frame (``tracking``) and the rig's photos the
+    captured image was divided by (``photos``)."""
     attrs = {
-        "registered": "yes" if pred.registered else "no",
-        "claimed": f"{valid.mean():.4f}",
+        "registered": "yes" if reg.registered else "no",
+        "claimed": f"{reg.claimed.mean():.4f}",
         "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)",
+        "camera_size": f"{reg.camera_size[0]}x{reg.camera_size[1]}",
     }
-    if camera is not None:
-        attrs["camera_size"] = f"{camera[0]}x{camera[1]}"
-    if pred.reason:
-        attrs["reason"] = pred.reason
-    if tracking:
-        attrs["tracking"] = tracking
+    if reg.reason:
+        attrs["reason"] = reg.reason
+    if reg.step:
+        attrs["tracking"] = reg.step
     if photos is not None:
         attrs["photos"] = "white and black" if photos[1] is not None else "white alone (ambient light kept)"
         attrs["photos"] += ", measured response" if photos[2] is not None else ", gamma 2.2"
     try:
-        files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs, confidence=pred.confidence))]
+        exr = encode_flow_exr(reg.flow, reg.claimed, job.sample_id, attrs=attrs, confidence=reg.confidence)
+        files = [(job.out, exr)]
         if job.viz is not None:
-            files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
+            files.append((job.viz, png_bytes(job.viz, flow_picture(reg.flow, reg.claimed, max_flow))))
         write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-    return Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason, tracking)
+    return Predicted(job.out, job.sample_id, reg.registered, float(reg.claimed.mean()), reg.reason, reg.step)
 
 
 def _load(path: Path) -> np.ndarray:
