@@ -16,9 +16,15 @@ With the camera's photos of a full-white and a full-black projection (``white``,
 captured image is registered with the surface divided out (:mod:`projreg.inference.photos`): one pair
 of photos for every pair and frame, as a fixed rig takes them; the EXR header's ``photos`` says so.
 
-Tracking (``track=True``, two folders of frames): the pairs are one sequence in name order; the first
-is registered in full, each next one from the previous one's flow (:mod:`projreg.inference.track`); the EXR
-header's ``tracking`` says which (``full``, ``tracked`` or ``lost``: re-registered in full).
+Folders, videos and still images (:mod:`projreg.inference.sources`): two folders pair their images by
+relative name; a video on either side pairs frame by frame in order with the other side's video or
+folder (name order), and a still projected image pairs with every captured frame. Every frame is read
+once before the first flow is written (frame counts that differ, a frame that does not read, and in
+tracking a frame of another size are refused then, and nothing is written).
+
+Tracking (``track=True``): the pairs are one sequence in order; the first is registered in full, each
+next one from the previous one's flow (:mod:`projreg.inference.track`); the EXR header's ``tracking``
+says which (``full``, ``tracked`` or ``lost``: re-registered in full).
 
 Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the projected grid,
 ``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
@@ -28,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +44,7 @@ from projsynth.flow.formats import encode_flow_exr
 from projsynth.flow.pictures import flow_picture, scale_of
 from projsynth.structured.response import read_response
 from projsynth.utils.files import write_atomic_all
-from projsynth.utils.images import list_images, load_image, png_bytes
+from projsynth.utils.images import png_bytes
 
 from ..errors import ProjregError
 from ..model.checkpoint import resolve_checkpoint
@@ -48,6 +55,7 @@ from .outputs import guard_outputs, require_suffix
 from .pipeline import Pipeline
 from .register import Photos, Registration, rig_photos
 from .runtime import DEFAULT_BACKEND
+from .sources import Frames, load, paired_count, survey
 
 
 @dataclass(frozen=True)
@@ -65,71 +73,69 @@ class Predicted:
 
 @dataclass(frozen=True)
 class Job:
-    """One pair to predict and where its outputs go (``viz`` None: no PNG)."""
+    """Where one pair's outputs go (``viz`` None: no PNG) and its sample id."""
 
-    projected: Path
-    captured: Path
     out: Path
     viz: Path | None
     sample_id: str
 
 
-def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
-    """File mode (two files) or folder mode (two folders, pairs by identical relative names).
+def plan_jobs(projected: Frames, captured: Frames, out: Path, viz: Path | None, count: int = 1) -> list[Job]:
+    """The outputs of file mode (two image files), folder mode (two folders, pairs by identical relative
+    names) or sequence mode (a video on either side, or a still projected image with a folder or video of
+    captured frames: frames paired in order, ``count`` pairs).
 
     Folder mode writes ``OUT/REL/STEM_flow.exr`` (and ``VIZ/REL/STEM_flow.png``) for every
-    ``REL/STEM.ext`` of the projected folder; the EXR's sample id is the relative path.
+    ``REL/STEM.ext`` of the projected folder; the EXR's sample id is the relative path. Sequence mode
+    names them after the captured frames: a folder's relative paths, a video's frame numbers
+    (``OUT/000000_flow.exr``, ...; sample id ``VIDEO#000000``).
     """
-    projected, captured, out = Path(projected), Path(captured), Path(out)
-    if not projected.is_dir():
-        if captured.is_dir():
-            raise ProjregError(
-                f"--projected {projected} is a file but --captured {captured} is a folder; "
-                "give two files or two folders"
-            )
+    out = Path(out)
+    if not projected.sequence and not captured.sequence:
         require_suffix(out, ".exr", "--out")
         if viz is not None:
             require_suffix(Path(viz), ".png", "--viz")
-        return [Job(projected, captured, out, viz, projected.name)]
-    if not captured.is_dir():
+        return [Job(out, viz, projected.path.name)]
+    if not captured.sequence:
         raise ProjregError(
-            f"--projected {projected} is a folder but --captured {captured} is not; give two files or two folders"
+            f"--projected {projected.path} is a {projected.kind} but --captured {captured.path} is one image; give "
+            "the captured frames as a folder or a video (a still --projected image stands for every frame)"
         )
-    try:
-        rel0 = [p.relative_to(projected).as_posix() for p in list_images(projected, "--projected")]
-        rel1 = [p.relative_to(captured).as_posix() for p in list_images(captured, "--captured")]
-    except ProjsynthError as e:
-        raise ProjregError(str(e)) from e
+    named = projected if projected.kind == captured.kind == "folder" else captured
+    if named is projected:
+        names = ids = _matched_names(projected, captured)
+    else:
+        names = captured.names(count)
+        ids = names if captured.kind == "folder" else [f"{captured.path.name}#{name}" for name in names]
+    jobs, seen = [], {}
+    for name, sample_id in zip(names, ids, strict=True):
+        stem = Path(name).with_suffix("").as_posix() + "_flow"
+        if stem in seen:
+            raise ProjregError(
+                f"{named.path / name} and {named.path / seen[stem]} would both write {out / stem}.exr; rename one"
+            )
+        seen[stem] = name
+        jobs.append(Job(out / f"{stem}.exr", None if viz is None else Path(viz) / f"{stem}.png", sample_id))
+    return jobs
+
+
+def _matched_names(projected: Frames, captured: Frames) -> list[str]:
+    """Folder mode's relative names, every one in both folders (both name orders are then one)."""
+    rel0, rel1 = projected.names(len(projected.files)), captured.names(len(captured.files))
     set0, set1 = set(rel0), set(rel1)
     for rel in rel0:
         if rel not in set1:
             raise ProjregError(
-                f"{projected / rel}: no captured partner {captured / rel}; pairs match by identical relative file names"
+                f"{projected.path / rel}: no captured partner {captured.path / rel}; "
+                "pairs match by identical relative file names"
             )
     for rel in rel1:
         if rel not in set0:
             raise ProjregError(
-                f"{captured / rel}: no projected partner {projected / rel}; "
+                f"{captured.path / rel}: no projected partner {projected.path / rel}; "
                 "pairs match by identical relative file names"
             )
-    jobs, seen = [], {}
-    for rel in rel0:
-        stem = Path(rel).with_suffix("").as_posix() + "_flow"
-        if stem in seen:
-            raise ProjregError(
-                f"{projected / rel} and {projected / seen[stem]} would both write {out / stem}.exr; rename one"
-            )
-        seen[stem] = rel
-        jobs.append(
-            Job(
-                projected / rel,
-                captured / rel,
-                out / f"{stem}.exr",
-                None if viz is None else Path(viz) / f"{stem}.png",
-                rel,
-            )
-        )
-    return jobs
+    return rel0
 
 
 def predict(
@@ -153,12 +159,14 @@ def predict(
     black: Path | None = None,
     response: Path | None = None,
 ) -> list[Predicted]:
-    """Predict the flow of one pair of files, or of every pair of two folders.
+    """Predict the flow of one pair of files, of every pair of two folders, or of every pair of frames.
 
     Args:
-        projected, captured: two image files, or two folders (pairs by identical relative names).
-        out: the EXR file (file mode) or the output folder (folder mode).
-        viz: colour PNG file (file mode) or folder (folder mode); None writes none.
+        projected, captured: two image files; two folders (pairs by identical relative names); or frames
+            paired in order (:mod:`projreg.inference.sources`): a video on either side, the other side a
+            video or a folder, or a still projected image for every captured frame (:func:`plan_jobs`).
+        out: the EXR file (file mode) or the output folder (the other modes).
+        viz: colour PNG file (file mode) or folder (the other modes); None writes none.
         model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model; with
             ``backend="onnxruntime"`` a graph written by ``projreg export --onnx``.
         max_side: longest side the network sees at most (also bounded by the quality's ``network_side``);
@@ -173,7 +181,7 @@ def predict(
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flow.pictures.flow_picture``, with its legend).
-        track: the pairs of two folders are the frames of one sequence, in name order (module docstring).
+        track: the pairs are the frames of one sequence, in order (module docstring).
         white, black: the camera's photos of a full-white and a full-black projection (``black``
             optional), of every captured image's size: each captured image is registered with the
             surface divided out (module docstring).
@@ -193,32 +201,38 @@ def predict(
             scale_of(np.zeros((1, 1, 2), np.float32), None, max_flow)
         except ProjsynthError as e:
             raise ProjregError(str(e)) from None
-    if track and not Path(projected).is_dir():
-        raise ProjregError(
-            f"--track: --projected {projected} is a file; give two folders of frames (taken in name order)"
-        )
     if track and not refine:
         raise ProjregError("--track follows each frame with the refinement; drop --no-refine")
     if track and batch_size > 1:
         raise ProjregError("--track registers frame after frame; drop --batch-size")
-    jobs = plan_jobs(projected, captured, out, viz)
+    sides = Frames(projected, "--projected"), Frames(captured, "--captured")
+    if track and not sides[1].sequence:
+        raise ProjregError(
+            f"--track: --captured {captured} is one image; give the frames of one sequence: two folders or videos, "
+            "or a still --projected image with a folder or video of captured frames"
+        )
+    in_order = sides[1].sequence and not sides[0].kind == sides[1].kind == "folder"  # paired by order, not names
+    shapes = _surveyed(sides, track) if in_order else None
+    count = paired_count(*sides, tuple(len(s) for s in shapes)) if shapes else 1
+    jobs = plan_jobs(*sides, out, viz, count)
     weights = model if backend == "onnxruntime" else resolve_checkpoint(model)
     guard_outputs(
         [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
-        [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
+        [(side.option, p) for side in sides for p in side.files]
         + [(opt, Path(p)) for opt, p in (("--model", weights), ("--white", white), ("--black", black)) if p]
         + ([("--response", Path(response))] if response else []),
     )
-    photos = _photos(jobs[: 1 if track else len(jobs)], white, black, response)
+    if shapes is None and (track or white is not None):
+        shapes = _surveyed(sides, track)  # before any pair is registered and written
+    photos = _photos(sides[1], None if shapes is None else shapes[1], white, black, response)
     pipeline = Pipeline(
         weights, quality=quality, device=device, precision=precision, backend=backend, refine=refine, max_side=max_side
     )
+    pairs = zip(islice(sides[0], len(jobs)), islice(sides[1], len(jobs)), strict=True)
     if track:
-        _require_one_size(jobs)
-        frames = ((_load(j.projected), _load(j.captured)) for j in jobs)
-        regs = pipeline.track(frames, photos, where="--track frames")
+        regs = pipeline.track(pairs, photos)
     else:
-        regs = _batches(pipeline, jobs, batch_size, photos)
+        regs = _batches(pipeline, pairs, batch_size, photos)
     results = []
     for job, reg in zip(jobs, regs, strict=True):
         results.append(_write(job, reg, refine, max_flow, photos))
@@ -227,41 +241,38 @@ def predict(
     return results
 
 
-def _batches(pipeline: Pipeline, jobs: list[Job], batch_size: int, photos: Photos | None) -> Iterator[Registration]:
-    """The jobs' pairs registered ``batch_size`` at a time, each batch read when the last one is written."""
-    for start in range(0, len(jobs), batch_size):
-        chunk = jobs[start : start + batch_size]
-        yield from pipeline.register([(_load(j.projected), _load(j.captured)) for j in chunk], batch_size, photos)
+def _batches(
+    pipeline: Pipeline, pairs: Iterator[tuple[np.ndarray, np.ndarray]], batch_size: int, photos: Photos | None
+) -> Iterator[Registration]:
+    """The pairs registered ``batch_size`` at a time, each batch read when the last one is written."""
+    while chunk := list(islice(pairs, batch_size)):
+        yield from pipeline.register(chunk, batch_size, photos)
 
 
-def _require_one_size(jobs: list[Job]) -> None:
-    """Before any frame is registered (and its flow written): every frame of a sequence has the first
-    one's projected and captured sizes, and every file reads. Costs one more decode per frame."""
-    first: dict[str, tuple[Path, tuple[int, ...]]] = {}
-    for job in jobs:
-        for option, path in (("--projected", job.projected), ("--captured", job.captured)):
-            shape = _load(path).shape
-            ref = first.setdefault(option, (path, shape))
-            if shape != ref[1]:
-                raise ProjregError(
-                    f"--track: {path} is {shape[1]}x{shape[0]} px but {ref[0]}, the sequence's first frame, is "
-                    f"{ref[1][1]}x{ref[1][0]}; the frames of one sequence share one size (nothing was written)"
-                )
+def _surveyed(sides: tuple[Frames, Frames], track: bool) -> list[list[tuple[int, ...]]]:
+    """Both sides' frames read once (:func:`~projreg.inference.sources.survey`): every frame reads and, for
+    a tracked sequence, has its side's first frame's size."""
+    return [survey(side, check_size=track) for side in sides]
 
 
-def _photos(jobs: list[Job], white: Path | None, black: Path | None, response: Path | None) -> Photos | None:
+def _photos(
+    captured: Frames,
+    shapes: list[tuple[int, ...]] | None,
+    white: Path | None,
+    black: Path | None,
+    response: Path | None,
+) -> Photos | None:
     """The rig's photos and response (:func:`~projreg.inference.register.rig_photos`), checked against the
-    captured image of every job (before any pair is registered and written; one more decode per pair)."""
+    ``shapes`` of every captured frame (:func:`_surveyed`: read before any pair is registered and written)."""
     try:
         curves = None if response is None else read_response(Path(response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-    photos = rig_photos(*(None if p is None else _load(p) for p in (white, black)), curves)
-    for job in jobs if photos is not None else ():
-        shape = _load(job.captured).shape
+    photos = rig_photos(*(None if p is None else load(p) for p in (white, black)), curves)
+    for k, shape in enumerate(shapes if photos is not None else ()):
         if shape != photos[0].shape:
             raise ProjregError(
-                f"--white {white} is {photos[0].shape[1]}x{photos[0].shape[0]} px but --captured {job.captured} "
+                f"--white {white} is {photos[0].shape[1]}x{photos[0].shape[0]} px but --captured {captured.where(k)} "
                 f"is {shape[1]}x{shape[0]}; shoot the photos with the camera of the captured images, at their size"
             )
     return photos
@@ -294,10 +305,3 @@ def _write(job: Job, reg: Registration, refined: bool, max_flow: float | None, p
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
     return Predicted(job.out, job.sample_id, reg.registered, float(reg.claimed.mean()), reg.reason, reg.step)
-
-
-def _load(path: Path) -> np.ndarray:
-    try:
-        return load_image(path)
-    except ProjsynthError as e:
-        raise ProjregError(str(e)) from e
