@@ -2,7 +2,8 @@
 
 A :class:`Registrar` loads a network once (the shipped reference, a checkpoint, or an ONNX graph) with
 a quality setting, and registers one pair, a batch, or the frames of a sequence (tracking); each answer
-is a :class:`Registration`. :func:`compensate` pre-warps content with one, :func:`warp_map` and
+is a :class:`Registration`; :meth:`Registrar.live` runs the live loop on a camera or a video played
+in real time. :func:`compensate` pre-warps content with one, :func:`warp_map` and
 :func:`export_warp` give its pre-warp as a map for show software (an STMap, a mesh, ``cv2.remap``
 maps), :func:`end_point_error` measures one against a truth. ``projreg predict`` and ``projreg bench``
 run the same code.
@@ -28,9 +29,11 @@ from projsynth.structured.response import Response, read_response
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import resize_to
-from .inference.compensate import as_it_is, check_aspect, prewarp
+from .inference.compensate import as_it_is, check_aspect, check_coverage, prewarp
+from .inference.live import Live, LiveFrame
 from .inference.pipeline import Pipeline
 from .inference.radiometric import calibrate, solve
+from .inference.realtime import Content, DeviceCamera, PlayedVideo
 from .inference.register import Registration, check_image, checked_pair, rig_photos
 from .inference.runtime import DEFAULT_BACKEND
 from .inference.warpfiles import export_warp_file, write_warp
@@ -140,6 +143,59 @@ class Registrar:
                 f"frames: expected an iterable of (projected, captured) pairs, got {type(frames).__name__}"
             )
         return self.pipeline.track(frames, rig_photos(white, black, _response(response)))
+
+    def live(
+        self,
+        captured: int | str | os.PathLike | PlayedVideo | DeviceCamera,
+        content: np.ndarray | str | os.PathLike | Content,
+        *,
+        predict_motion: bool = False,
+        coverage: str = "complete",
+        min_confidence: float = 0.0,
+        fill: int = 0,
+        limit: int | None = None,
+    ) -> Live:
+        """The live loop, as ``projreg live`` (:mod:`projreg.inference.live`): iterate over the answer for
+        a :class:`~projreg.inference.live.LiveFrame` per registered camera frame, each registered from the
+        previous one (tracking) and its pre-warped content frame (``LiveFrame.projector``, to show);
+        frames that arrive meanwhile are dropped; then ``.summary()`` gives frames in, registered,
+        dropped, fps and latency (median, p95) and ``.records()`` the numbers of every frame.
+
+        Args:
+            captured: an OpenCV camera index, a video file played as a camera in real time, or a
+                :class:`~projreg.inference.realtime.PlayedVideo` / ``DeviceCamera`` (e.g. with a clock).
+            content: what the projector is given to show: uint8 RGB ``(H, W, 3)``, an image file or a
+                video (played at its rate, looping), or a :class:`~projreg.inference.realtime.Content`.
+            predict_motion: carry each flow forward by the motion measured between the last two
+                registrations, over the loop's latency.
+            coverage, min_confidence, fill: which projector pixels show content, as :func:`compensate`.
+            limit: stop after this many registered frames (None: when the camera ends).
+        """
+        if self.pipeline.refiner is None:
+            raise ProjregError("the live loop tracks each frame with the refinement; use refine=True")
+        check_coverage(coverage, min_confidence)
+        if not (isinstance(fill, int | np.integer) and 0 <= fill <= 255):
+            raise ProjregError(f"fill: must be an integer in 0..255, got {fill!r}")
+        if limit is not None and (not _is_int(limit) or limit < 1):
+            raise ProjregError(f"limit: expected None or an integer >= 1, got {limit!r}")
+        if isinstance(content, np.ndarray):
+            content = Content(check_image("content", content), "content")
+        elif isinstance(content, str | os.PathLike):
+            content = Content(Path(content), "content")
+        elif not isinstance(content, Content):
+            raise ProjregError(f"content: expected an image array or a path, got {type(content).__name__}")
+        if _is_int(captured):
+            camera = DeviceCamera(int(captured), "captured")
+        elif isinstance(captured, str | os.PathLike):
+            camera = PlayedVideo(Path(captured), "captured")
+        elif isinstance(captured, PlayedVideo | DeviceCamera):
+            camera = captured
+        else:
+            raise ProjregError(
+                f"captured: expected a camera index, a video path or a camera, got {type(captured).__name__}"
+            )
+        options = {"coverage": coverage, "min_confidence": min_confidence, "fill": fill}
+        return Live(self.pipeline, camera, content, predict_motion=predict_motion, limit=limit, **options)
 
 
 def _response(response: Response | str | Path | None) -> Response | None:
@@ -287,6 +343,7 @@ def end_point_error(
 
 __all__ = [
     "CONFIDENT",
+    "LiveFrame",
     "Registrar",
     "Registration",
     "WarpMap",

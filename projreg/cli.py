@@ -15,6 +15,7 @@ from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fa
 from projsynth.utils.cores import available_cores
 
 from .cli_compensate import compensate
+from .cli_live import live
 from .cli_options import (
     Backend,
     Device,
@@ -514,6 +515,7 @@ def predict(
 
 app.command(cls=Command)(compensate)
 app.command(cls=Command)(warp)
+app.command(cls=Command)(live)
 
 
 def main() -> None:

@@ -100,10 +100,7 @@ def shown_pixels(
         ProjregError: an unknown coverage, a threshold outside [0, 1], or one asked of a flow without
             confidence.
     """
-    if coverage not in COVERAGES:
-        raise ProjregError(f"--coverage must be one of {', '.join(COVERAGES)}, got {coverage!r}")
-    if not 0 <= min_confidence <= 1:
-        raise ProjregError(f"--min-confidence must be in 0..1, got {min_confidence}")
+    check_coverage(coverage, min_confidence)
     if coverage == "claimed":
         return None if claimed is None else np.asarray(claimed, bool)
     if min_confidence > 0:
@@ -114,6 +111,14 @@ def shown_pixels(
             )
         return np.asarray(confidence) >= min_confidence
     return None
+
+
+def check_coverage(coverage: str, min_confidence: float) -> None:
+    """Refuse a coverage that is not one of ``COVERAGES`` or a confidence threshold outside [0, 1]."""
+    if coverage not in COVERAGES:
+        raise ProjregError(f"--coverage must be one of {', '.join(COVERAGES)}, got {coverage!r}")
+    if not 0 <= min_confidence <= 1:
+        raise ProjregError(f"--min-confidence must be in 0..1, got {min_confidence}")
 
 
 def prewarp(

@@ -32,6 +32,13 @@ def is_video(path: Path) -> bool:
     return Path(path).suffix.lower() in VIDEO_SUFFIXES and not Path(path).is_dir()
 
 
+def check_video_suffix(path: Path, option: str) -> None:
+    """Refuse a video name whose suffix has no codec here (``VIDEO_CODECS``), naming ``option``."""
+    if Path(path).suffix.lower() not in VIDEO_CODECS:
+        names = ", ".join(f"{s} ({c})" for s, c in VIDEO_CODECS.items())
+        raise ProjregError(f"{option} {path}: a video is written as {names}; give one of these suffixes")
+
+
 def _quiet() -> int:
     """OpenCV's and FFmpeg's console messages off (an explicit ``OPENCV_FFMPEG_LOGLEVEL`` is kept); the
     previous OpenCV log level, to restore."""
@@ -53,7 +60,7 @@ class VideoFile:
         self.path, self.option = Path(path), option
         if not self.path.is_file():
             raise ProjregError(f"{option} {self.path}: no such video file")
-        capture = self._open()
+        capture = self.open()
         try:
             fps, count = capture.get(cv2.CAP_PROP_FPS), capture.get(cv2.CAP_PROP_FRAME_COUNT)
         finally:
@@ -61,7 +68,8 @@ class VideoFile:
         self.fps = fps if fps > 0 else None
         self.stated = int(count) if count > 0 else None
 
-    def _open(self) -> cv2.VideoCapture:
+    def open(self) -> cv2.VideoCapture:
+        """A fresh ``cv2.VideoCapture`` of the file, at its first frame (the caller releases it)."""
         previous = _quiet()
         try:
             capture = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
@@ -75,7 +83,7 @@ class VideoFile:
 
     def __iter__(self) -> Iterator[np.ndarray]:
         """The frames from the first, each read when asked for (a video is never held whole)."""
-        capture, k = self._open(), 0
+        capture, k = self.open(), 0
         try:
             while True:
                 ok, bgr = capture.read()
@@ -105,14 +113,11 @@ class VideoWriter:
 
     def __init__(self, path: Path, fps: float, option: str = "--out") -> None:
         self.path, self.fps, self.option = Path(path), float(fps), option
-        suffix = self.path.suffix.lower()
-        if suffix not in VIDEO_CODECS:
-            names = ", ".join(f"{s} ({c})" for s, c in VIDEO_CODECS.items())
-            raise ProjregError(f"{option} {self.path}: a video is written as {names}; give one of these suffixes")
+        check_video_suffix(self.path, option)
         if not self.fps > 0:
             raise ProjregError(f"{option} {self.path}: a video needs a frame rate > 0, got {fps}")
         self.tmp = self.path.with_name(f".{self.path.stem}.{secrets.token_hex(6)}.tmp{self.path.suffix}")
-        self.codec = VIDEO_CODECS[suffix]
+        self.codec = VIDEO_CODECS[self.path.suffix.lower()]
         self.writer: cv2.VideoWriter | None = None
         self.size: tuple[int, int] | None = None
         self.frames = 0
