@@ -30,7 +30,7 @@ def compensate(
     out: Annotated[
         Path,
         typer.Option(
-            help="Projector image to write (PNG); a video (.mkv FFV1 lossless, .avi MJPG, .mp4 MPEG-4) when "
+            help="Projector image to write (PNG); a video (.mkv FFV1 or .avi HuffYUV, lossless; .mp4 MPEG-4) when "
             "--content is a video or folder or --flow a folder.",
             parser=output_path,
             metavar="FILE.png|VIDEO",

@@ -35,7 +35,7 @@ def live(
     out: Annotated[
         Path | None,
         typer.Option(
-            help="Write the pre-warped frames as a video, one per registered frame (.mkv FFV1, .avi, .mp4).",
+            help="Write the pre-warped frames as a video, one per registered frame (.mkv FFV1, .avi HuffYUV, .mp4).",
             parser=output_path,
             metavar="VIDEO",
         ),

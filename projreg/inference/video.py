@@ -5,7 +5,7 @@ A video is read as uint8 RGB frames ``(H, W, 3)`` in order (:class:`VideoFile`);
 states but the decoder cannot give (a damaged or truncated file) is an error, not the end of the
 video. A video is written whole or not at all (:class:`VideoWriter`: a temporary name beside it, then a
 rename); the codec follows the suffix (``VIDEO_CODECS``): ``.mkv`` is FFV1, lossless, so a video written
-here and read back gives the very frames, bit for bit.
+here and read back gives the very frames, bit for bit (``.avi``, HuffYUV, too).
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ import numpy as np
 from ..errors import ProjregError
 
 VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".m4v", ".webm", ".mpg", ".mpeg", ".ts", ".wmv", ".flv")
-# FFV1 in Matroska is lossless; MJPG (AVI) and MPEG-4 part 2 (MP4) are lossy, for players without FFV1
-VIDEO_CODECS = {".mkv": "FFV1", ".avi": "MJPG", ".mp4": "mp4v"}
+# FFV1 in Matroska: lossless and compact; HuffYUV in AVI: lossless, large, 3-8x faster to encode and decode
+# (the live loop's --out, a camera recording); MPEG-4 part 2 in MP4: lossy, for players without either
+VIDEO_CODECS = {".mkv": "FFV1", ".avi": "HFYU", ".mp4": "mp4v"}
 FFMPEG_QUIET = "-8"  # AV_LOG_QUIET: the decoder's complaints about a damaged file become our one line
 
 
