@@ -16,7 +16,9 @@ flow (``projreg live``, :meth:`projreg.api.Registrar.live`).
 * **Motion prediction** (``predict_motion``): the rig keeps moving while a frame is registered, so the
   flow is stale by the latency when it is shown. With two registered frames ``i0 < i1`` and flows
   ``F0, F1``, the flow shown is ``F1 + (F1 - F0) * h / (i1 - i0)`` (:func:`extrapolate`: constant
-  velocity per pixel, per camera frame), ``h`` the latency measured for this frame in camera frames.
+  velocity per pixel, per camera frame), ``h`` the latency measured for this frame in camera frames;
+  only between two tracked frames (a full registration, first or after a lost track, is another
+  estimator: its difference from a tracked flow is not the rig's motion).
 
 Convention: flows float32 ``(H, W, 2)``, forward, projected -> captured, camera pixels; times in
 seconds since the loop started.
@@ -132,7 +134,8 @@ class Live:
         try:
             for reg in self.pipeline.track(pairs(), where="camera frames"):
                 shot, flow, horizon = taken[-1], reg.flow, 0.0
-                if self.predict_motion and previous is not None and reg.registered:
+                tracked = reg.registered and reg.step == "tracked"
+                if self.predict_motion and previous is not None and tracked:
                     horizon = (self.clock() - shot.arrival) * self.camera.fps
                     flow = extrapolate(reg.flow, previous[1], shot.index - previous[0], horizon)
                 image, content_index = self.content.at(self.clock())
@@ -147,7 +150,7 @@ class Live:
                     **self.warp,
                 )
                 warped = self.clock()
-                previous = (shot.index, reg.flow) if reg.registered else None
+                previous = (shot.index, reg.flow) if tracked else None
                 frame = LiveFrame(
                     shot.index,
                     reg,

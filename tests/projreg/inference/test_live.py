@@ -111,11 +111,17 @@ def test_a_slow_loop_drops_frames_and_counts_them(pipeline, orbit):
 def test_motion_prediction_carries_each_flow_forward_by_its_latency(pipeline, orbit):
     live = _loop(pipeline, orbit, cost=0.01, predict_motion=True)
     frames = list(live)
-    assert len(frames) >= 3 and frames[0].horizon == 0  # one registration: no velocity yet
+    assert frames[0].horizon == 0  # one registration: no velocity yet
+    carried = 0
     for before, f in zip(frames, frames[1:], strict=False):
-        assert f.horizon > 0
-        expected = extrapolate(f.registration.flow, before.registration.flow, f.index - before.index, f.horizon)
-        np.testing.assert_array_equal(f.flow, expected)
+        if before.registration.step == f.registration.step == "tracked" and f.registration.registered:
+            assert f.horizon > 0
+            expected = extrapolate(f.registration.flow, before.registration.flow, f.index - before.index, f.horizon)
+            np.testing.assert_array_equal(f.flow, expected)
+            carried += 1
+        else:  # after a full registration (the first, a lost track): its jump is no motion
+            assert f.horizon == 0 and f.flow is f.registration.flow
+    assert carried == sum(r["horizon_frames"] > 0 for r in live.records()) >= 1, [f.registration.step for f in frames]
 
 
 def test_ctrl_c_stops_cleanly_and_keeps_what_was_written(pipeline, orbit, tmp_path):
