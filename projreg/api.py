@@ -2,7 +2,8 @@
 
 A :class:`Registrar` loads a network once (the shipped reference, a checkpoint, or an ONNX graph) with
 a quality setting, and registers one pair, a batch, or the frames of a sequence (tracking); each answer
-is a :class:`Registration`. :func:`compensate` pre-warps content with one, :func:`warp_map` and
+is a :class:`Registration`; :meth:`Registrar.live` runs the live loop on a camera or a video played
+in real time. :func:`compensate` pre-warps content with one, :func:`warp_map` and
 :func:`export_warp` give its pre-warp as a map for show software (an STMap, a mesh, ``cv2.remap``
 maps), :func:`end_point_error` measures one against a truth. ``projreg predict`` and ``projreg bench``
 run the same code.
@@ -17,7 +18,6 @@ messages.
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
@@ -28,20 +28,19 @@ from projsynth.structured.response import Response, read_response
 
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
-from .geometry.frames import flow_to_captured, frame_scale, resize_to
-from .inference.compensate import as_it_is, check_aspect, prewarp
-from .inference.photos import normalise_capture
+from .geometry.frames import resize_to
+from .inference.compensate import as_it_is, check_aspect, check_coverage, prewarp
+from .inference.live import Live, LiveFrame
+from .inference.pipeline import Pipeline
 from .inference.radiometric import calibrate, solve
-from .inference.register import Photos, Registration, check_image, register_pairs, rig_photos
-from .inference.runtime import DEFAULT_BACKEND, open_network
-from .inference.track import Tracker
+from .inference.realtime import Content, DeviceCamera, PlayedVideo
+from .inference.register import Registration, check_image, checked_pair, rig_photos
+from .inference.runtime import DEFAULT_BACKEND
 from .inference.warpfiles import export_warp_file, write_warp
 from .inference.warpmaps import WarpMap
 from .inference.warpmaps import warp_map as flow_warp_map
-from .prediction import CONFIDENT, Prediction
+from .prediction import CONFIDENT
 from .refine.config import DEFAULT_QUALITY
-from .refine.config import quality as quality_setting
-from .refine.refiner import GeometricRefiner
 
 
 class Registrar:
@@ -74,15 +73,20 @@ class Registrar:
         refine: bool = True,
         max_side: int = 1024,
     ) -> None:
-        setting = quality_setting(quality)
         if not _is_int(max_side) or max_side < 16:
             raise ProjregError(f"max_side: expected an integer >= 16, got {max_side!r}")
         if model is not None and not isinstance(model, str | os.PathLike):
             raise ProjregError(f"model: expected None, 'reference' or a path, got {type(model).__name__}")
-        self.quality = setting.name
-        self.max_side, self.finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
-        self.network = open_network(model, backend=backend, device=device, precision=precision)
-        self.refiner = GeometricRefiner(setting.refine) if refine else None
+        self.pipeline = Pipeline(
+            model,
+            quality=quality,
+            device=device,
+            precision=precision,
+            backend=backend,
+            refine=refine,
+            max_side=max_side,
+        )
+        self.quality = self.pipeline.quality
 
     def register(
         self,
@@ -118,7 +122,7 @@ class Registrar:
             raise ProjregError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         pairs = _checked_pairs(pairs)
         photos = rig_photos(white, black, _response(response))
-        return register_pairs(self.network, self.refiner, pairs, self.max_side, batch_size, self.finer_side, photos)
+        return self.pipeline.register(pairs, batch_size, photos)
 
     def track(
         self,
@@ -132,42 +136,66 @@ class Registrar:
         flow, the network only for the first frame and where the track is lost (:mod:`projreg.inference.track`).
         Every frame of one sequence must have the sizes of the first. ``white``, ``black``: as
         :meth:`register`, the same photos for every frame."""
-        if self.refiner is None:
+        if self.pipeline.refiner is None:
             raise ProjregError("tracking follows each frame with the refinement; use refine=True")
         if not isinstance(frames, Iterable) or isinstance(frames, np.ndarray):
             raise ProjregError(
                 f"frames: expected an iterable of (projected, captured) pairs, got {type(frames).__name__}"
             )
-        return self._track(frames, rig_photos(white, black, _response(response)))
+        return self.pipeline.track(frames, rig_photos(white, black, _response(response)))
 
-    def _track(self, frames: Iterable[tuple[np.ndarray, np.ndarray]], photos: Photos | None) -> Iterator[Registration]:
-        """:meth:`track`'s generator, once its arguments are checked."""
-        timings: dict[str, float] = {}
+    def live(
+        self,
+        captured: int | str | os.PathLike | PlayedVideo | DeviceCamera,
+        content: np.ndarray | str | os.PathLike | Content,
+        *,
+        predict_motion: bool = False,
+        coverage: str = "complete",
+        min_confidence: float = 0.0,
+        fill: int = 0,
+        limit: int | None = None,
+    ) -> Live:
+        """The live loop, as ``projreg live`` (:mod:`projreg.inference.live`): iterate over the answer for
+        a :class:`~projreg.inference.live.LiveFrame` per registered camera frame, each registered from the
+        previous one (tracking) and its pre-warped content frame (``LiveFrame.projector``, to show);
+        frames that arrive meanwhile are dropped; then ``.summary()`` gives frames in, registered,
+        dropped, fps and latency (median, p95) and ``.records()`` the numbers of every frame.
 
-        def full(a: np.ndarray, b: np.ndarray) -> Prediction:
-            reg = self.register(a, b)
-            timings.update(reg.timings)
-            return Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
-
-        tracker, first = Tracker(full, self.refiner), None
-        for i, frame in enumerate(frames):
-            a, b = _checked_pair(f"frames[{i}]", frame)
-            if photos is not None:
-                b = normalise_capture(b, *photos)
-            if first is None:
-                first = (a.shape, b.shape)
-            elif (a.shape, b.shape) != first:
-                raise ProjregError(f"frame sizes changed within the sequence: {first} then {(a.shape, b.shape)}")
-            timings.clear()
-            t0 = time.perf_counter()
-            pred = tracker(a, resize_to(b, a.shape))
-            total = 1000 * (time.perf_counter() - t0)
-            timings = timings or {"refine": total}
-            flow = flow_to_captured(pred.flow, frame_scale(a.shape, b.shape))
-            claimed = np.zeros(a.shape[:2], bool) if pred.claimed is None else pred.claimed
-            yield Registration(
-                flow, claimed, pred.confidence, pred.registered, pred.reason, b.shape[:2], dict(timings), tracker.last
+        Args:
+            captured: an OpenCV camera index, a video file played as a camera in real time, or a
+                :class:`~projreg.inference.realtime.PlayedVideo` / ``DeviceCamera`` (e.g. with a clock).
+            content: what the projector is given to show: uint8 RGB ``(H, W, 3)``, an image file or a
+                video (played at its rate, looping), or a :class:`~projreg.inference.realtime.Content`.
+            predict_motion: carry each flow forward by the motion measured between the last two
+                registrations, over the loop's latency.
+            coverage, min_confidence, fill: which projector pixels show content, as :func:`compensate`.
+            limit: stop after this many registered frames (None: when the camera ends).
+        """
+        if self.pipeline.refiner is None:
+            raise ProjregError("the live loop tracks each frame with the refinement; use refine=True")
+        check_coverage(coverage, min_confidence)
+        if not (isinstance(fill, int | np.integer) and 0 <= fill <= 255):
+            raise ProjregError(f"fill: must be an integer in 0..255, got {fill!r}")
+        if limit is not None and (not _is_int(limit) or limit < 1):
+            raise ProjregError(f"limit: expected None or an integer >= 1, got {limit!r}")
+        if isinstance(content, np.ndarray):
+            content = Content(check_image("content", content), "content")
+        elif isinstance(content, str | os.PathLike):
+            content = Content(Path(content), "content")
+        elif not isinstance(content, Content):
+            raise ProjregError(f"content: expected an image array or a path, got {type(content).__name__}")
+        if _is_int(captured):
+            camera = DeviceCamera(int(captured), "captured")
+        elif isinstance(captured, str | os.PathLike):
+            camera = PlayedVideo(Path(captured), "captured")
+        elif isinstance(captured, PlayedVideo | DeviceCamera):
+            camera = captured
+        else:
+            raise ProjregError(
+                f"captured: expected a camera index, a video path or a camera, got {type(captured).__name__}"
             )
+        options = {"coverage": coverage, "min_confidence": min_confidence, "fill": fill}
+        return Live(self.pipeline, camera, content, predict_motion=predict_motion, limit=limit, **options)
 
 
 def _response(response: Response | str | Path | None) -> Response | None:
@@ -188,14 +216,7 @@ def _checked_pairs(pairs: object) -> list[tuple[np.ndarray, np.ndarray]]:
     """``pairs`` as a list of checked ``(projected, captured)`` images, or one line naming the bad one."""
     if isinstance(pairs, np.ndarray) or not isinstance(pairs, Iterable):
         raise ProjregError(f"pairs: expected a sequence of (projected, captured) pairs, got {type(pairs).__name__}")
-    return [_checked_pair(f"pairs[{i}]", pair) for i, pair in enumerate(pairs)]
-
-
-def _checked_pair(where: str, pair: object) -> tuple[np.ndarray, np.ndarray]:
-    if not isinstance(pair, tuple | list) or len(pair) != 2:
-        got = f"{len(pair)} items" if isinstance(pair, tuple | list) else type(pair).__name__
-        raise ProjregError(f"{where}: expected a (projected, captured) pair, got {got}")
-    return check_image(f"{where} projected", pair[0]), check_image(f"{where} captured", pair[1])
+    return [checked_pair(f"pairs[{i}]", pair) for i, pair in enumerate(pairs)]
 
 
 def compensate(
@@ -322,6 +343,7 @@ def end_point_error(
 
 __all__ = [
     "CONFIDENT",
+    "LiveFrame",
     "Registrar",
     "Registration",
     "WarpMap",

@@ -14,12 +14,12 @@ import typer
 from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
 from projsynth.utils.cores import available_cores
 
+from .cli_compensate import compensate
+from .cli_live import live
 from .cli_options import (
     Backend,
-    Coverage,
     Device,
     Fast,
-    MinConfidence,
     Precision,
     Quality,
     ResponseFile,
@@ -409,17 +409,26 @@ def bench(
 
 @app.command(cls=Command)
 def predict(
-    projected: Annotated[Path, typer.Option(help="Projected image, or a folder of them.", metavar="IMG|DIR")],
+    projected: Annotated[
+        Path, typer.Option(help="Projected image, or a folder or video of them.", metavar="IMG|DIR|VIDEO")
+    ],
     captured: Annotated[
-        Path, typer.Option(help="Captured image, or a folder (same relative names).", metavar="IMG|DIR")
+        Path,
+        typer.Option(
+            help="Captured image, or a folder (same relative names as a --projected folder) or a video (frames "
+            "paired in order with a --projected video or folder, or all with one --projected image).",
+            metavar="IMG|DIR|VIDEO",
+        ),
     ],
     out: Annotated[
         Path,
-        typer.Option(help="Flow EXR file, or output folder (folder mode).", parser=output_path, metavar="FILE|DIR"),
+        typer.Option(help="Flow EXR file, or output folder (folders, videos).", parser=output_path, metavar="FILE|DIR"),
     ],
     viz: Annotated[
         Path | None,
-        typer.Option(help="Colour-wheel PNG file, or folder (folder mode).", parser=output_path, metavar="FILE|DIR"),
+        typer.Option(
+            help="Colour-wheel PNG file, or folder (folders, videos).", parser=output_path, metavar="FILE|DIR"
+        ),
     ] = None,
     model: Annotated[
         Path | None,
@@ -436,7 +445,8 @@ def predict(
     track: Annotated[
         bool,
         typer.Option(
-            "--track", help="Folders of frames of one sequence, in name order: each frame from the previous one's flow."
+            "--track",
+            help="The frames of one sequence (folders in name order, videos): each from the previous one's flow.",
         ),
     ] = False,
     white: Annotated[
@@ -503,72 +513,9 @@ def predict(
         typer.echo(f"{len(written)} flow file(s) written: {out}", err=True)
 
 
-@app.command(cls=Command)
-def compensate(
-    content: Annotated[Path, typer.Option(help="Desired camera view (image).", metavar="IMG")],
-    flow: Annotated[
-        Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).", metavar="FILE.exr")
-    ],
-    out: Annotated[Path, typer.Option(help="Projector image to write (PNG).", parser=output_path, metavar="FILE.png")],
-    fill: Annotated[int, typer.Option(help="Grey level of projector pixels without correspondence.")] = 0,
-    photometric: Annotated[
-        bool, typer.Option("--photometric", help="Also correct colour and light (needs --white and --black).")
-    ] = False,
-    white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
-    black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
-    response: ResponseFile = None,
-    gamma: Annotated[
-        float | None,
-        typer.Option(
-            help="Without --response: projector and camera gamma of the photometric model [default: 2.2].",
-            show_default=False,
-        ),
-    ] = None,
-    coverage: Coverage = "complete",
-    min_confidence: MinConfidence = 0.0,
-) -> None:
-    """Pre-warp content: the projector image that makes the camera see CONTENT undistorted.
-
-    By default every projector pixel whose flow lands in the camera frame shows content (a pair reported
-    as not registered: the content as it is); the flow's confidence and claim are information, not a mask
-    (--coverage claimed, --min-confidence)."""
-    from .inference.compensate import compensate_files
-
-    try:
-        if photometric and (white is None or black is None):
-            raise ProjregError(
-                "--photometric needs --white and --black: the camera's photos of a full-white and "
-                "a full-black projection"
-            )
-        calibration = {"--white": white, "--black": black, "--response": response, "--gamma": gamma}
-        given = [option for option, value in calibration.items() if value is not None]
-        if not photometric and given:
-            raise ProjregError(f"{given[0]} sets the photometric correction; add --photometric")
-        if response is not None and gamma is not None:
-            raise ProjregError("--gamma is the assumption --response replaces by a measurement; drop --gamma")
-        photos = (white, black) if photometric else None
-        gamma = 2.2 if gamma is None else gamma
-        result = compensate_files(content, flow, out, fill, photos, gamma, coverage, min_confidence, response)
-    except ProjregError as e:
-        raise fail("projreg", e) from None
-    for line in result["warnings"]:
-        typer.echo(f"projreg: warning: {line}", err=True)
-    h, w = result["size"]
-    how = "geometric + photometric" if photometric else "geometric"
-    how += " with the measured response" if response is not None else ""
-    if not result["registered"] and coverage == "complete":
-        how = "photometric only" if photometric else "uncompensated"
-        typer.echo(
-            f"projreg: warning: {flow}: its pair was not registered; the content is projected as it is", err=True
-        )
-    typer.echo(
-        f"{out}: {w}x{h} projector image ({how}), content on {result['lit']:.1%} of its pixels, "
-        f"--fill {fill} elsewhere",
-        err=True,
-    )
-
-
+app.command(cls=Command)(compensate)
 app.command(cls=Command)(warp)
+app.command(cls=Command)(live)
 
 
 def main() -> None:

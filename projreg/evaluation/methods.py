@@ -11,12 +11,12 @@ import numpy as np
 import torch
 
 from ..errors import ProjregError
-from ..inference.runtime import DEFAULT_BACKEND, finer_flow, flows_resized, open_network
+from ..inference.pipeline import Pipeline
+from ..inference.runtime import DEFAULT_BACKEND
 from ..inference.track import FlowTracker, Tracker
 from ..model.checkpoint import reference_checkpoint, resolve_checkpoint
 from ..prediction import Prediction
-from ..refine.config import DEFAULT_QUALITY, quality
-from ..refine.refiner import GeometricRefiner
+from ..refine.config import DEFAULT_QUALITY
 from .baselines import make_baseline
 
 DEFAULT_BASELINES = ("dis-fast", "dis-medium", "farneback", "sift-ransac")
@@ -73,24 +73,21 @@ class ModelRun:
 def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun()) -> list[Method]:
     """A checkpoint as methods named ``name`` (default: the file stem), run as ``run`` says (:class:`ModelRun`)."""
     refine, track, batch_size = run.refine, run.track, run.batch_size
-    setting = quality(run.quality)
     if refine not in REFINE_MODES:
         raise ProjregError(f"--refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
     if track and refine == "off":
         raise ProjregError("--track follows each frame with the refinement; use --refine on or both")
-    net = open_network(path, backend=run.backend, device=run.device, precision=run.precision)
-    name = (name or Path(path).stem) + ("" if setting.name == DEFAULT_QUALITY else f"-{setting.name}")
-    refiner = GeometricRefiner(setting.refine)
-    max_side, finer_side = setting.network_side, setting.finer_side()
-    batched = BatchedFlows(net, max_side, batch_size) if batch_size > 1 else None
+    pipeline = Pipeline(path, quality=run.quality, device=run.device, precision=run.precision, backend=run.backend)
+    name = (name or Path(path).stem) + ("" if pipeline.quality == DEFAULT_QUALITY else f"-{pipeline.quality}")
+    batched = BatchedFlows(pipeline, batch_size) if batch_size > 1 else None
 
     def raw(img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
         if batched is not None:
             return batched(img0, img1)
-        return flows_resized(net, [(img0, img1)], max_side)[0]
+        return pipeline.flows([(img0, img1)])[0]
 
     def refined(img0: np.ndarray, img1: np.ndarray) -> Prediction:
-        return refiner.predict_info(img0, img1, raw(img0, img1), finer=finer_flow(net, img0, img1, finer_side))[0]
+        return pipeline.refined(img0, img1, raw(img0, img1))
 
     prefetch = None if batched is None else batched.prefetch
     if refine == "off":
@@ -99,7 +96,7 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
         Method(name, "model", refined, True, prefetch=prefetch),
         Method(f"{name}-raw", "model", raw, prefetch=prefetch),
     ]
-    tracker = Tracker(refined, refiner)
+    tracker = pipeline.tracker(refined)
     return (both if refine == "both" else both[:1]) + (
         [Method(f"{name}+track", "model", tracker, True, tracker)] if track else []
     )
@@ -108,26 +105,26 @@ def model_methods(path: Path, name: str | None = None, run: ModelRun = ModelRun(
 class BatchedFlows:
     """Network flows computed ahead in batches (``bench --batch-size``), handed out by the arrays.
 
-    :meth:`prefetch` runs the next pairs through the network, ``batch_size`` pairs of one size per
-    call (:func:`~projreg.inference.runtime.flows_resized`); calling the object with a pair returns the flow
+    :meth:`prefetch` runs the next pairs through the pipeline's network, ``batch_size`` pairs of one size
+    per call (:meth:`~projreg.inference.pipeline.Pipeline.flows`); calling the object with a pair returns the flow
     prefetched for those arrays (the same projected array, an equal captured one), or computes it
     alone when it was not prefetched (a captured image resized to the projected one's size).
     """
 
-    def __init__(self, net: Callable, max_side: int, batch_size: int) -> None:
-        self.net, self.max_side, self.batch_size = net, max_side, batch_size
+    def __init__(self, pipeline: Pipeline, batch_size: int) -> None:
+        self.pipeline, self.batch_size = pipeline, batch_size
         self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
         self.flows: list[np.ndarray] = []
 
     def prefetch(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> None:
         self.pairs = list(pairs)
-        self.flows = flows_resized(self.net, self.pairs, self.max_side, self.batch_size)
+        self.flows = self.pipeline.flows(self.pairs, self.batch_size)
 
     def __call__(self, projected: np.ndarray, captured: np.ndarray) -> np.ndarray:
         for (a, b), flow in zip(self.pairs, self.flows, strict=True):
             if a is projected and (b is captured or np.array_equal(b, captured)):
                 return flow
-        return flows_resized(self.net, [(projected, captured)], self.max_side)[0]
+        return self.pipeline.flows([(projected, captured)])[0]
 
 
 def baseline_method(name: str, equalize: bool = False) -> Method:

@@ -32,11 +32,14 @@ from projsynth.utils.images import load_image
 from ..errors import ProjregError
 from ..geometry.warp import lands_inside, pixel_maps
 from .outputs import guard_outputs, require_suffix, write_png
-from .radiometric import CLIPPED_SHARE, calibrate, solve
+from .radiometric import CLIPPED_SHARE, Radiometry, calibrate, solve
+from .sources import Frames, survey
+from .video import VideoWriter
 
 COVERAGES = ("complete", "claimed")  # which projector pixels show content (module docstring)
 PREDICTED = "valid_threshold"  # the header attribute of `projreg predict`'s EXR (its flow is finite everywhere)
 ASPECT_TOLERANCE = 0.02  # content whose aspect ratio differs from the camera frame's by more is refused
+DEFAULT_FPS = 30.0  # a video's frame rate when neither --fps nor a content video gives one (the simulator's)
 
 
 def compensate(
@@ -97,10 +100,7 @@ def shown_pixels(
         ProjregError: an unknown coverage, a threshold outside [0, 1], or one asked of a flow without
             confidence.
     """
-    if coverage not in COVERAGES:
-        raise ProjregError(f"--coverage must be one of {', '.join(COVERAGES)}, got {coverage!r}")
-    if not 0 <= min_confidence <= 1:
-        raise ProjregError(f"--min-confidence must be in 0..1, got {min_confidence}")
+    check_coverage(coverage, min_confidence)
     if coverage == "claimed":
         return None if claimed is None else np.asarray(claimed, bool)
     if min_confidence > 0:
@@ -111,6 +111,14 @@ def shown_pixels(
             )
         return np.asarray(confidence) >= min_confidence
     return None
+
+
+def check_coverage(coverage: str, min_confidence: float) -> None:
+    """Refuse a coverage that is not one of ``COVERAGES`` or a confidence threshold outside [0, 1]."""
+    if coverage not in COVERAGES:
+        raise ProjregError(f"--coverage must be one of {', '.join(COVERAGES)}, got {coverage!r}")
+    if not 0 <= min_confidence <= 1:
+        raise ProjregError(f"--min-confidence must be in 0..1, got {min_confidence}")
 
 
 def prewarp(
@@ -208,54 +216,106 @@ def compensate_files(
     coverage: str = "complete",
     min_confidence: float = 0.0,
     response: Path | None = None,
+    fps: float | None = None,
 ) -> dict:
-    """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG).
+    """``projreg compensate``: read a desired view and a flow EXR, write the projector image (PNG); or, for
+    a content video (or folder of frames) and/or a folder of flow EXRs (``predict --track``'s, taken in
+    name order), write the projector's video, frame ``k`` the content's frame ``k`` (a still image: every
+    frame) pre-warped by flow ``k`` (one EXR: every frame; a fixed rig), at ``fps`` frames per second
+    (None: the content video's rate, else ``DEFAULT_FPS``), whole or not at all
+    (:class:`~projreg.inference.video.VideoWriter`).
 
     Returns:
         ``size`` ``(H, W)`` of the projector image, ``lit``, the share of its pixels that show content
-        (the others get ``fill``), ``registered`` (False: the flow's pair was not registered and the
-        content is projected as it is, module docstring), and ``warnings``: lines for the user (a
-        saturated white photo).
+        (the others get ``fill``; a video: the mean over its frames), ``registered`` (False: a flow's pair
+        was not registered and its content is projected as it is, module docstring), ``frames`` (a
+        video: how many; an image: None), ``unregistered`` (a video: the frames projected as they are),
+        and ``warnings``: lines for the user (a saturated white photo).
 
     ``photometric``: the camera's photos ``(white, black)`` of a full-white and a full-black
     projection; the desired view is then also corrected for the surface's colour and light
     (:mod:`projreg.inference.radiometric`) in the photos' frame before the geometric pre-warp, with the
     devices' curves of the ``response`` file (``projsynth response``), or ``gamma`` for both without one.
     ``coverage`` and ``min_confidence``: which projector pixels show content (:func:`shown_pixels`).
+
+    Raises:
+        ProjregError: one line naming the option: a content's and the flows' frame counts that differ, a
+            frame or flow that does not read, an output suffix that is not the output's format.
     """
-    require_suffix(Path(out), ".png", "--out")
-    inputs = [("--content", Path(content)), ("--flow", Path(flow))]
+    contents, flows = Frames(Path(content), "--content"), _flow_files(Path(flow))
+    video = contents.sequence or Path(flow).is_dir()
+    if video:
+        writer = VideoWriter(Path(out), fps or contents.fps or DEFAULT_FPS)  # its suffix checked now
+    else:
+        require_suffix(Path(out), ".png", "--out")
+    inputs = [("--content", p) for p in contents.files] + [("--flow", p) for p in flows]
     inputs += [] if photometric is None else [("--white", Path(photometric[0])), ("--black", Path(photometric[1]))]
     inputs += [] if response is None else [("--response", Path(response))]
     guard_outputs([("--out", Path(out))], inputs)
     if not 0 <= fill <= 255:
         raise ProjregError(f"--fill: must be in 0..255, got {fill}")
+    count = _frame_count(contents, flows, Path(flow))
     try:
-        image = load_image(Path(content))
-        f = read_flow_file(Path(flow))
         photos = None if photometric is None else [load_image(Path(p)) for p in photometric]
         curves = None if response is None else read_response(Path(response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
+    model = None if photos is None else calibrate(photos[0], photos[1], gamma, response=curves)
+    warnings = []
+    if model is not None and model.clipped > CLIPPED_SHARE:
+        warnings.append(
+            f"--white {photometric[0]}: saturated on {model.clipped:.0%} of the frame, where the projector's "
+            "gain is underestimated; shoot it again with a shorter exposure"
+        )
+    pictures = iter(contents)  # a still image: without end
+    options = {"fill": fill, "coverage": coverage, "min_confidence": min_confidence, "white": photometric}
+    if not video:
+        projector, lit, registered = _compensate_frame(next(pictures), flows[0], photos, model, options)
+        write_png(Path(out), projector)
+        size, frames, unregistered = tuple(projector.shape[:2]), None, int(not registered)
+    else:
+        shares, unregistered = [], 0
+        with writer:
+            for k in range(count):
+                projector, share, registered = _compensate_frame(
+                    next(pictures), flows[k % len(flows)], photos, model, options
+                )
+                writer.write(projector)
+                shares.append(share)
+                unregistered += not registered
+        size, frames, lit, registered = writer.size, count, float(np.mean(shares)), unregistered == 0
+    return {
+        "size": size,
+        "lit": lit,
+        "registered": registered,
+        "frames": frames,
+        "unregistered": unregistered,
+        "warnings": warnings,
+    }
+
+
+def _compensate_frame(
+    image: np.ndarray, flow: Path, photos: list[np.ndarray] | None, model: Radiometry | None, options: dict
+) -> tuple[np.ndarray, float, bool]:
+    """One content frame pre-warped by the flow file ``flow`` (:func:`compensate_files`): the projector
+    image, the share of its pixels lit with content, and whether the flow's pair registered."""
+    try:
+        f = read_flow_file(flow)
+    except ProjsynthError as e:
+        raise ProjregError(str(e)) from e
+    coverage, min_confidence = options["coverage"], options["min_confidence"]
     registered, coverage = file_coverage(f, coverage, min_confidence)
     shown = shown_pixels(f.valid, f.confidence, coverage, min_confidence)
-    stated, warnings = stated_camera_size(f.header, flow), []
     # without a stated frame, the photos' (they are the camera's), else the flow's own grid
-    camera = stated or (photos[0].shape[:2] if photos is not None else f.valid.shape)
+    camera = stated_camera_size(f.header, flow) or (photos[0].shape[:2] if photos is not None else f.valid.shape)
     check_aspect(image.shape, camera)
     if photos is not None:
-        model = calibrate(photos[0], photos[1], gamma, response=curves)
         if camera != photos[0].shape[:2]:
             raise ProjregError(
-                f"--white {photometric[0]}: {photos[0].shape[1]}x{photos[0].shape[0]} px, but the flow's camera "
+                f"--white {options['white'][0]}: {photos[0].shape[1]}x{photos[0].shape[0]} px, but the flow's camera "
                 f"frame is {camera[1]}x{camera[0]}; shoot the photos with the camera the flow was measured with"
             )
         image = solve(cv2.resize(image, camera[::-1], interpolation=cv2.INTER_AREA), model)[0]
-        if model.clipped > CLIPPED_SHARE:
-            warnings.append(
-                f"--white {photometric[0]}: saturated on {model.clipped:.0%} of the frame, where the projector's "
-                "gain is underestimated; shoot it again with a shorter exposure"
-            )
     try:
         projector = prewarp(
             image,
@@ -265,11 +325,44 @@ def compensate_files(
             registered=registered,
             coverage=coverage,
             min_confidence=min_confidence,
-            fill=fill,
+            fill=options["fill"],
             camera_size=camera,
         )
     except ProjregError as e:
         raise ProjregError(f"--flow {flow}: {e}") from e
-    write_png(Path(out), projector)
     lit = float(content_mask(f.flow, shown, registered, coverage, camera).mean())
-    return {"size": tuple(projector.shape[:2]), "lit": lit, "registered": registered, "warnings": warnings}
+    return projector, lit, registered
+
+
+def _flow_files(flow: Path) -> list[Path]:
+    """``--flow``: one EXR, or a folder's EXRs in relative name order (``predict``'s output folder)."""
+    if not flow.is_dir():
+        return [flow]
+    files = sorted(
+        (p for p in flow.rglob("*") if p.suffix.lower() == ".exr" and not p.name.startswith(".")),
+        key=lambda p: p.relative_to(flow).as_posix(),
+    )
+    if not files:
+        raise ProjregError(
+            f"--flow {flow}: no flow EXR in this folder; point --flow at `projreg predict --track`'s output"
+        )
+    return files
+
+
+def _frame_count(contents: Frames, flows: list[Path], flow: Path) -> int:
+    """The frames of the video to write: the flows' number (a folder), else the content's (a still
+    content: 1); a content folder or video (read once now, :func:`~projreg.inference.sources.survey`) and
+    a folder of flows must hold as many.
+
+    Raises:
+        ProjregError: the counts differ, or a content frame does not read (before anything is written).
+    """
+    if not contents.sequence:
+        return len(flows) if flow.is_dir() else 1
+    known = len(contents.files) if contents.kind == "folder" else len(survey(contents, check_size=False))
+    if flow.is_dir() and known != len(flows):
+        raise ProjregError(
+            f"--content {contents.path} has {known} frames but --flow {flow} holds {len(flows)} flow EXRs; the "
+            "content and the flows are paired frame by frame, so both need as many (nothing was written)"
+        )
+    return known

@@ -16,9 +16,15 @@ With the camera's photos of a full-white and a full-black projection (``white``,
 captured image is registered with the surface divided out (:mod:`projreg.inference.photos`): one pair
 of photos for every pair and frame, as a fixed rig takes them; the EXR header's ``photos`` says so.
 
-Tracking (``track=True``, two folders of frames): the pairs are one sequence in name order; the first
-is registered in full, each next one from the previous one's flow (:mod:`projreg.inference.track`); the EXR
-header's ``tracking`` says which (``full``, ``tracked`` or ``lost``: re-registered in full).
+Folders, videos and still images (:mod:`projreg.inference.sources`): two folders pair their images by
+relative name; a video on either side pairs frame by frame in order with the other side's video or
+folder (name order), and a still projected image pairs with every captured frame. Every frame is read
+once before the first flow is written (frame counts that differ, a frame that does not read, and in
+tracking a frame of another size are refused then, and nothing is written).
+
+Tracking (``track=True``): the pairs are one sequence in order; the first is registered in full, each
+next one from the previous one's flow (:mod:`projreg.inference.track`); the EXR header's ``tracking``
+says which (``full``, ``tracked`` or ``lost``: re-registered in full).
 
 Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the projected grid,
 ``flow[y, x] = (u, v)`` means projected pixel ``(x, y)`` is seen at captured pixel ``(x + u, y + v)``.
@@ -26,8 +32,9 @@ Convention: images uint8 RGB ``(H, W, 3)``; flow float32 ``(H, W, 2)`` on the pr
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -37,20 +44,18 @@ from projsynth.flow.formats import encode_flow_exr
 from projsynth.flow.pictures import flow_picture, scale_of
 from projsynth.structured.response import read_response
 from projsynth.utils.files import write_atomic_all
-from projsynth.utils.images import list_images, load_image, png_bytes
+from projsynth.utils.images import png_bytes
 
 from ..errors import ProjregError
-from ..geometry.frames import register_any_size
 from ..model.checkpoint import resolve_checkpoint
-from ..prediction import CONFIDENT, Prediction
+from ..prediction import CONFIDENT
 from ..refine.config import DEFAULT_QUALITY
 from ..refine.config import quality as resolve_quality
-from ..refine.refiner import GeometricRefiner
 from .outputs import guard_outputs, require_suffix
-from .photos import normalise_capture
-from .register import Photos, register_pairs, rig_photos
-from .runtime import DEFAULT_BACKEND, OnnxNetwork, TorchNetwork, finer_flow, flows_resized, open_network
-from .track import Tracker
+from .pipeline import Pipeline
+from .register import Photos, Registration, rig_photos
+from .runtime import DEFAULT_BACKEND
+from .sources import Frames, load, paired_count, survey
 
 
 @dataclass(frozen=True)
@@ -68,71 +73,69 @@ class Predicted:
 
 @dataclass(frozen=True)
 class Job:
-    """One pair to predict and where its outputs go (``viz`` None: no PNG)."""
+    """Where one pair's outputs go (``viz`` None: no PNG) and its sample id."""
 
-    projected: Path
-    captured: Path
     out: Path
     viz: Path | None
     sample_id: str
 
 
-def plan_jobs(projected: Path, captured: Path, out: Path, viz: Path | None) -> list[Job]:
-    """File mode (two files) or folder mode (two folders, pairs by identical relative names).
+def plan_jobs(projected: Frames, captured: Frames, out: Path, viz: Path | None, count: int = 1) -> list[Job]:
+    """The outputs of file mode (two image files), folder mode (two folders, pairs by identical relative
+    names) or sequence mode (a video on either side, or a still projected image with a folder or video of
+    captured frames: frames paired in order, ``count`` pairs).
 
     Folder mode writes ``OUT/REL/STEM_flow.exr`` (and ``VIZ/REL/STEM_flow.png``) for every
-    ``REL/STEM.ext`` of the projected folder; the EXR's sample id is the relative path.
+    ``REL/STEM.ext`` of the projected folder; the EXR's sample id is the relative path. Sequence mode
+    names them after the captured frames: a folder's relative paths, a video's frame numbers
+    (``OUT/000000_flow.exr``, ...; sample id ``VIDEO#000000``).
     """
-    projected, captured, out = Path(projected), Path(captured), Path(out)
-    if not projected.is_dir():
-        if captured.is_dir():
-            raise ProjregError(
-                f"--projected {projected} is a file but --captured {captured} is a folder; "
-                "give two files or two folders"
-            )
+    out = Path(out)
+    if not projected.sequence and not captured.sequence:
         require_suffix(out, ".exr", "--out")
         if viz is not None:
             require_suffix(Path(viz), ".png", "--viz")
-        return [Job(projected, captured, out, viz, projected.name)]
-    if not captured.is_dir():
+        return [Job(out, viz, projected.path.name)]
+    if not captured.sequence:
         raise ProjregError(
-            f"--projected {projected} is a folder but --captured {captured} is not; give two files or two folders"
+            f"--projected {projected.path} is a {projected.kind} but --captured {captured.path} is one image; give "
+            "the captured frames as a folder or a video (a still --projected image stands for every frame)"
         )
-    try:
-        rel0 = [p.relative_to(projected).as_posix() for p in list_images(projected, "--projected")]
-        rel1 = [p.relative_to(captured).as_posix() for p in list_images(captured, "--captured")]
-    except ProjsynthError as e:
-        raise ProjregError(str(e)) from e
+    named = projected if projected.kind == captured.kind == "folder" else captured
+    if named is projected:
+        names = ids = _matched_names(projected, captured)
+    else:
+        names = captured.names(count)
+        ids = names if captured.kind == "folder" else [f"{captured.path.name}#{name}" for name in names]
+    jobs, seen = [], {}
+    for name, sample_id in zip(names, ids, strict=True):
+        stem = Path(name).with_suffix("").as_posix() + "_flow"
+        if stem in seen:
+            raise ProjregError(
+                f"{named.path / name} and {named.path / seen[stem]} would both write {out / stem}.exr; rename one"
+            )
+        seen[stem] = name
+        jobs.append(Job(out / f"{stem}.exr", None if viz is None else Path(viz) / f"{stem}.png", sample_id))
+    return jobs
+
+
+def _matched_names(projected: Frames, captured: Frames) -> list[str]:
+    """Folder mode's relative names, every one in both folders (both name orders are then one)."""
+    rel0, rel1 = projected.names(len(projected.files)), captured.names(len(captured.files))
     set0, set1 = set(rel0), set(rel1)
     for rel in rel0:
         if rel not in set1:
             raise ProjregError(
-                f"{projected / rel}: no captured partner {captured / rel}; pairs match by identical relative file names"
+                f"{projected.path / rel}: no captured partner {captured.path / rel}; "
+                "pairs match by identical relative file names"
             )
     for rel in rel1:
         if rel not in set0:
             raise ProjregError(
-                f"{captured / rel}: no projected partner {projected / rel}; "
+                f"{captured.path / rel}: no projected partner {projected.path / rel}; "
                 "pairs match by identical relative file names"
             )
-    jobs, seen = [], {}
-    for rel in rel0:
-        stem = Path(rel).with_suffix("").as_posix() + "_flow"
-        if stem in seen:
-            raise ProjregError(
-                f"{projected / rel} and {projected / seen[stem]} would both write {out / stem}.exr; rename one"
-            )
-        seen[stem] = rel
-        jobs.append(
-            Job(
-                projected / rel,
-                captured / rel,
-                out / f"{stem}.exr",
-                None if viz is None else Path(viz) / f"{stem}.png",
-                rel,
-            )
-        )
-    return jobs
+    return rel0
 
 
 def predict(
@@ -156,12 +159,14 @@ def predict(
     black: Path | None = None,
     response: Path | None = None,
 ) -> list[Predicted]:
-    """Predict the flow of one pair of files, or of every pair of two folders.
+    """Predict the flow of one pair of files, of every pair of two folders, or of every pair of frames.
 
     Args:
-        projected, captured: two image files, or two folders (pairs by identical relative names).
-        out: the EXR file (file mode) or the output folder (folder mode).
-        viz: colour PNG file (file mode) or folder (folder mode); None writes none.
+        projected, captured: two image files; two folders (pairs by identical relative names); or frames
+            paired in order (:mod:`projreg.inference.sources`): a video on either side, the other side a
+            video or a folder, or a still projected image for every captured frame (:func:`plan_jobs`).
+        out: the EXR file (file mode) or the output folder (the other modes).
+        viz: colour PNG file (file mode) or folder (the other modes); None writes none.
         model: a ``projreg train`` checkpoint; None or ``reference``: the shipped reference model; with
             ``backend="onnxruntime"`` a graph written by ``projreg export --onnx``.
         max_side: longest side the network sees at most (also bounded by the quality's ``network_side``);
@@ -176,7 +181,7 @@ def predict(
         progress: called ``(done, total)`` after each pair.
         max_flow: the ``viz`` pictures' colours saturate at this magnitude (px); None: each picture's
             largest (``projsynth.flow.pictures.flow_picture``, with its legend).
-        track: the pairs of two folders are the frames of one sequence, in name order (module docstring).
+        track: the pairs are the frames of one sequence, in order (module docstring).
         white, black: the camera's photos of a full-white and a full-black projection (``black``
             optional), of every captured image's size: each captured image is registered with the
             surface divided out (module docstring).
@@ -188,7 +193,7 @@ def predict(
     """
     if max_side < 16:
         raise ProjregError(f"--max-side must be >= 16, got {max_side}")
-    setting = resolve_quality(quality)
+    resolve_quality(quality)  # an unknown quality refused before any file is read
     if batch_size < 1:
         raise ProjregError(f"--batch-size must be >= 1, got {batch_size}")
     if max_flow is not None:
@@ -196,145 +201,107 @@ def predict(
             scale_of(np.zeros((1, 1, 2), np.float32), None, max_flow)
         except ProjsynthError as e:
             raise ProjregError(str(e)) from None
-    if track and not Path(projected).is_dir():
-        raise ProjregError(
-            f"--track: --projected {projected} is a file; give two folders of frames (taken in name order)"
-        )
     if track and not refine:
         raise ProjregError("--track follows each frame with the refinement; drop --no-refine")
     if track and batch_size > 1:
         raise ProjregError("--track registers frame after frame; drop --batch-size")
-    jobs = plan_jobs(projected, captured, out, viz)
+    sides = Frames(projected, "--projected"), Frames(captured, "--captured")
+    if track and not sides[1].sequence:
+        raise ProjregError(
+            f"--track: --captured {captured} is one image; give the frames of one sequence: two folders or videos, "
+            "or a still --projected image with a folder or video of captured frames"
+        )
+    in_order = sides[1].sequence and not sides[0].kind == sides[1].kind == "folder"  # paired by order, not names
+    shapes = _surveyed(sides, track) if in_order else None
+    count = paired_count(*sides, tuple(len(s) for s in shapes)) if shapes else 1
+    jobs = plan_jobs(*sides, out, viz, count)
     weights = model if backend == "onnxruntime" else resolve_checkpoint(model)
     guard_outputs(
         [(opt, p) for j in jobs for opt, p in (("--out", j.out), ("--viz", j.viz))],
-        [(opt, p) for j in jobs for opt, p in (("--projected", j.projected), ("--captured", j.captured))]
+        [(side.option, p) for side in sides for p in side.files]
         + [(opt, Path(p)) for opt, p in (("--model", weights), ("--white", white), ("--black", black)) if p]
         + ([("--response", Path(response))] if response else []),
     )
-    photos = _photos(jobs[: 1 if track else len(jobs)], white, black, response)
-    net = open_network(weights, backend=backend, device=device, precision=precision)
-    max_side, finer_side = min(max_side, setting.network_side), setting.finer_side(max_side)
-    refiner = GeometricRefiner(setting.refine) if refine else None
+    if shapes is None and (track or white is not None):
+        shapes = _surveyed(sides, track)  # before any pair is registered and written
+    photos = _photos(sides[1], None if shapes is None else shapes[1], white, black, response)
+    pipeline = Pipeline(
+        weights, quality=quality, device=device, precision=precision, backend=backend, refine=refine, max_side=max_side
+    )
+    pairs = zip(islice(sides[0], len(jobs)), islice(sides[1], len(jobs)), strict=True)
     if track:
-        return _track(jobs, net, refiner, (max_side, finer_side), progress, max_flow, photos)
+        regs = pipeline.track(pairs, photos)
+    else:
+        regs = _batches(pipeline, pairs, batch_size, photos)
     results = []
-    for start in range(0, len(jobs), batch_size):
-        chunk = jobs[start : start + batch_size]
-        pairs = [(_load(j.projected), _load(j.captured)) for j in chunk]
-        regs = register_pairs(net, refiner, pairs, max_side, batch_size, finer_side, photos)
-        for job, reg in zip(chunk, regs, strict=True):
-            pred = Prediction(reg.flow, reg.claimed, reg.registered, reg.reason, reg.confidence)
-            results.append(_write(job, pred, refiner is not None, max_flow, camera=reg.camera_size, photos=photos))
-            if progress:
-                progress(len(results), len(jobs))
-    return results
-
-
-def _track(
-    jobs: list[Job],
-    net: TorchNetwork | OnnxNetwork,
-    refiner: GeometricRefiner,
-    sides: tuple[int, int | None],
-    progress: Callable[[int, int], None] | None,
-    max_flow: float | None,
-    photos: Photos | None,
-) -> list[Predicted]:
-    """``predict --track``: the jobs are the frames of one sequence, in order (:class:`Tracker`); the
-    network at ``sides`` (first, on escalation); every captured frame with the surface divided out by
-    ``photos``."""
-
-    def register(img0: np.ndarray, img1: np.ndarray) -> Prediction:
-        finer = finer_flow(net, img0, img1, sides[1])
-        return refiner.predict_info(img0, img1, flows_resized(net, [(img0, img1)], sides[0])[0], finer=finer)[0]
-
-    _require_one_size(jobs)
-    tracker = Tracker(register, refiner)
-    results = []
-    for job in jobs:
-        img0, img1 = _load(job.projected), _load(job.captured)
-        if photos is not None:
-            img1 = normalise_capture(img1, *photos)
-        pred = register_any_size(tracker, img0, img1)
-        results.append(_write(job, pred, True, max_flow, tracker.last, img1.shape[:2], photos))
+    for job, reg in zip(jobs, regs, strict=True):
+        results.append(_write(job, reg, refine, max_flow, photos))
         if progress:
             progress(len(results), len(jobs))
     return results
 
 
-def _require_one_size(jobs: list[Job]) -> None:
-    """Before any frame is registered (and its flow written): every frame of a sequence has the first
-    one's projected and captured sizes, and every file reads. Costs one more decode per frame."""
-    first: dict[str, tuple[Path, tuple[int, ...]]] = {}
-    for job in jobs:
-        for option, path in (("--projected", job.projected), ("--captured", job.captured)):
-            shape = _load(path).shape
-            ref = first.setdefault(option, (path, shape))
-            if shape != ref[1]:
-                raise ProjregError(
-                    f"--track: {path} is {shape[1]}x{shape[0]} px but {ref[0]}, the sequence's first frame, is "
-                    f"{ref[1][1]}x{ref[1][0]}; the frames of one sequence share one size (nothing was written)"
-                )
+def _batches(
+    pipeline: Pipeline, pairs: Iterator[tuple[np.ndarray, np.ndarray]], batch_size: int, photos: Photos | None
+) -> Iterator[Registration]:
+    """The pairs registered ``batch_size`` at a time, each batch read when the last one is written."""
+    while chunk := list(islice(pairs, batch_size)):
+        yield from pipeline.register(chunk, batch_size, photos)
 
 
-def _photos(jobs: list[Job], white: Path | None, black: Path | None, response: Path | None) -> Photos | None:
+def _surveyed(sides: tuple[Frames, Frames], track: bool) -> list[list[tuple[int, ...]]]:
+    """Both sides' frames read once (:func:`~projreg.inference.sources.survey`): every frame reads and, for
+    a tracked sequence, has its side's first frame's size."""
+    return [survey(side, check_size=track) for side in sides]
+
+
+def _photos(
+    captured: Frames,
+    shapes: list[tuple[int, ...]] | None,
+    white: Path | None,
+    black: Path | None,
+    response: Path | None,
+) -> Photos | None:
     """The rig's photos and response (:func:`~projreg.inference.register.rig_photos`), checked against the
-    captured image of every job (before any pair is registered and written; one more decode per pair)."""
+    ``shapes`` of every captured frame (:func:`_surveyed`: read before any pair is registered and written)."""
     try:
         curves = None if response is None else read_response(Path(response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-    photos = rig_photos(*(None if p is None else _load(p) for p in (white, black)), curves)
-    for job in jobs if photos is not None else ():
-        shape = _load(job.captured).shape
+    photos = rig_photos(*(None if p is None else load(p) for p in (white, black)), curves)
+    for k, shape in enumerate(shapes if photos is not None else ()):
         if shape != photos[0].shape:
             raise ProjregError(
-                f"--white {white} is {photos[0].shape[1]}x{photos[0].shape[0]} px but --captured {job.captured} "
+                f"--white {white} is {photos[0].shape[1]}x{photos[0].shape[0]} px but --captured {captured.where(k)} "
                 f"is {shape[1]}x{shape[0]}; shoot the photos with the camera of the captured images, at their size"
             )
     return photos
 
 
-def _write(
-    job: Job,
-    pred: Prediction,
-    refined: bool,
-    max_flow: float | None,
-    tracking: str = "",
-    camera: tuple[int, int] | None = None,
-    photos: Photos | None = None,
-) -> Predicted:
+def _write(job: Job, reg: Registration, refined: bool, max_flow: float | None, photos: Photos | None) -> Predicted:
     """One pair's EXR (and PNG, its colours saturating at ``max_flow``), all or nothing; what was
-    written. ``tracking``: how the tracker registered the frame (EXR header ``tracking``); ``camera``:
-    the captured image's ``(H, W)``, the frame the flow's positions are in (header ``camera_size``);
-    ``photos``: the rig's photos the captured image was divided by (header ``photos``)."""
-    valid = np.ones(pred.flow.shape[:2], bool) if pred.claimed is None else pred.claimed
+    written. The header says whether the pair registered, the frame the flow's positions are in
+    (``camera_size``), how the tracker registered a frame (``tracking``) and the rig's photos the
+    captured image was divided by (``photos``)."""
     attrs = {
-        "registered": "yes" if pred.registered else "no",
-        "claimed": f"{valid.mean():.4f}",
+        "registered": "yes" if reg.registered else "no",
+        "claimed": f"{reg.claimed.mean():.4f}",
         "valid_threshold": f"confidence >= {CONFIDENT}" if refined else "all (network alone)",
+        "camera_size": f"{reg.camera_size[0]}x{reg.camera_size[1]}",
     }
-    if camera is not None:
-        attrs["camera_size"] = f"{camera[0]}x{camera[1]}"
-    if pred.reason:
-        attrs["reason"] = pred.reason
-    if tracking:
-        attrs["tracking"] = tracking
+    if reg.reason:
+        attrs["reason"] = reg.reason
+    if reg.step:
+        attrs["tracking"] = reg.step
     if photos is not None:
         attrs["photos"] = "white and black" if photos[1] is not None else "white alone (ambient light kept)"
         attrs["photos"] += ", measured response" if photos[2] is not None else ", gamma 2.2"
     try:
-        files = [(job.out, encode_flow_exr(pred.flow, valid, job.sample_id, attrs=attrs, confidence=pred.confidence))]
+        exr = encode_flow_exr(reg.flow, reg.claimed, job.sample_id, attrs=attrs, confidence=reg.confidence)
+        files = [(job.out, exr)]
         if job.viz is not None:
-            files.append((job.viz, png_bytes(job.viz, flow_picture(pred.flow, valid, max_flow))))
+            files.append((job.viz, png_bytes(job.viz, flow_picture(reg.flow, reg.claimed, max_flow))))
         write_atomic_all(files, make_parents=True)  # the flow and its picture, or neither
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-    return Predicted(job.out, job.sample_id, pred.registered, float(valid.mean()), pred.reason, tracking)
-
-
-def _load(path: Path) -> np.ndarray:
-    try:
-        return load_image(path)
-    except ProjsynthError as e:
-        raise ProjregError(str(e)) from e
+    return Predicted(job.out, job.sample_id, reg.registered, float(reg.claimed.mean()), reg.reason, reg.step)

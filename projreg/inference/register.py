@@ -1,6 +1,6 @@
-"""Registering pairs held in memory: the network on a batch, then the refinement of each pair, whatever
-the camera's size (:func:`register_pairs`); what ``predict`` writes and :class:`projreg.api.Registrar`
-returns.
+"""What a registration answers (:class:`Registration`: what ``predict`` writes and
+:class:`projreg.api.Registrar` returns; :class:`~projreg.inference.pipeline.Pipeline` makes it), and the
+checks of its inputs: images (:func:`check_image`) and the rig's photos (:func:`rig_photos`).
 
 Conventions: images uint8 RGB ``(H, W, 3)`` (the captured one of any size); flows float32 ``(H, W, 2)``
 on the projected grid, forward, in captured pixels.
@@ -8,8 +8,6 @@ on the projected grid, forward, in captured pixels.
 
 from __future__ import annotations
 
-import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,10 +15,7 @@ import numpy as np
 from projsynth.structured.response import Response
 
 from ..errors import ProjregError
-from ..geometry.frames import flow_to_captured, frame_scale, resize_to
-from ..refine.refiner import GeometricRefiner
-from .photos import check_photos, normalise_capture
-from .runtime import Network, finer_flow, flows_resized
+from .photos import check_photos
 
 # a rig's photos of a full-white and (optionally) a full-black projection, and the devices' measured response
 Photos = tuple[np.ndarray, np.ndarray | None, Response | None]
@@ -49,46 +44,6 @@ class Registration:
     camera_size: tuple[int, int]
     timings: dict[str, float] = field(default_factory=dict)
     step: str = ""
-
-
-def register_pairs(
-    net: Network,
-    refiner: GeometricRefiner | None,
-    pairs: Sequence[tuple[np.ndarray, np.ndarray]],
-    max_side: int,
-    batch_size: int = 1,
-    finer_side: int | None = None,
-    photos: Photos | None = None,
-) -> list[Registration]:
-    """Each pair registered: the network on the pair (the captured image resized to the projected one,
-    the pair shrunk to ``max_side``), ``batch_size`` pairs of one size per call, then the refinement
-    (None: the network alone, every pixel claimed), which may ask for the network's flow again at up to
-    ``finer_side`` (:func:`~projreg.inference.runtime.finer_flow`); flows in each camera's own pixels.
-    With ``photos`` (:func:`rig_photos`), every captured image first has the surface divided out
-    (:func:`~projreg.inference.photos.normalise_capture`)."""
-    views = [check_image("captured", b) for _, b in pairs]
-    if photos is not None:
-        views = [normalise_capture(b, *photos) for b in views]
-    same = [(check_image("projected", a), resize_to(b, a.shape)) for (a, _), b in zip(pairs, views, strict=True)]
-    t0 = time.perf_counter()
-    flows = flows_resized(net, same, max_side, batch_size)
-    network_ms = 1000 * (time.perf_counter() - t0) / max(len(pairs), 1)
-    out = []
-    for (a, b), flow, (_, captured) in zip(same, flows, pairs, strict=True):
-        camera = captured.shape[:2]
-        scale = frame_scale(a.shape, captured.shape)
-        if refiner is None:
-            claimed = np.ones(a.shape[:2], bool)
-            out.append(
-                Registration(flow_to_captured(flow, scale), claimed, None, True, "", camera, {"network": network_ms})
-            )
-            continue
-        t0 = time.perf_counter()
-        pred, info = refiner.predict_info(a, b, flow, finer=finer_flow(net, a, b, finer_side))
-        timings = {"network": network_ms, "refine": 1000 * (time.perf_counter() - t0)}
-        flow = flow_to_captured(pred.flow, scale)
-        out.append(Registration(flow, pred.claimed, pred.confidence, pred.registered, pred.reason, camera, timings))
-    return out
 
 
 def rig_photos(white: np.ndarray | None, black: np.ndarray | None, response: Response | None = None) -> Photos | None:
@@ -121,3 +76,11 @@ def check_image(name: str, image: np.ndarray) -> np.ndarray:
             f"{name}: {image.shape[1]}x{image.shape[0]} px; an image needs at least {MIN_IMAGE_SIDE} px a side"
         )
     return image
+
+
+def checked_pair(where: str, pair: object) -> tuple[np.ndarray, np.ndarray]:
+    """``pair`` as a checked ``(projected, captured)`` pair of images, or one line naming ``where``."""
+    if not isinstance(pair, tuple | list) or len(pair) != 2:
+        got = f"{len(pair)} items" if isinstance(pair, tuple | list) else type(pair).__name__
+        raise ProjregError(f"{where}: expected a (projected, captured) pair, got {got}")
+    return check_image(f"{where} projected", pair[0]), check_image(f"{where} captured", pair[1])

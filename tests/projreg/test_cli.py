@@ -5,7 +5,7 @@ from typer.testing import CliRunner
 
 from projreg.cli import app
 
-COMMANDS = {"train", "export", "bench", "predict", "compensate", "warp"}
+COMMANDS = {"train", "export", "bench", "predict", "compensate", "warp", "live"}
 
 
 def test_every_command_has_help():

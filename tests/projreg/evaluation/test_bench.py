@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 
 import projreg.evaluation.bench
 import projreg.evaluation.methods
+import projreg.inference.pipeline
 from projreg import ProjregError
 from projreg.cli import app
 from projreg.evaluation.baselines import parse_baselines
@@ -389,13 +390,13 @@ def test_refine_only_is_a_baseline_row_beside_sift(tiny_train, monkeypatch):
 def test_batches_of_samples_change_no_flow(tiny_train, tiny_ckpt, monkeypatch):
     """``--batch-size``: the network runs on several samples per call; every figure stays the same."""
     calls = []
-    flows_resized = projreg.evaluation.methods.flows_resized
+    flows_resized = projreg.inference.pipeline.flows_resized
 
     def counting(net, pairs, max_side, batch_size=1):
         calls.append((len(pairs), batch_size))
         return flows_resized(net, pairs, max_side, batch_size)
 
-    monkeypatch.setattr(projreg.evaluation.methods, "flows_resized", counting)
+    monkeypatch.setattr(projreg.inference.pipeline, "flows_resized", counting)
     one = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=5, refine="both", device=CPU)
     calls.clear()
     three = run_bench(tiny_train, models=[tiny_ckpt], baselines=[], limit=5, refine="both", device=CPU, batch_size=3)
@@ -424,13 +425,13 @@ def test_the_default_model_row_escalates_to_the_network_at_its_full_side(monkeyp
     from projreg.refine.config import DEFAULT_QUALITY, QUALITIES
 
     asked = []
-    real = projreg.evaluation.methods.finer_flow
+    real = projreg.inference.pipeline.finer_flow
 
     def spy(net, projected, captured, side):
         inner = real(net, projected, captured, side)
         return None if inner is None else (lambda: asked.append(side) or inner())
 
-    monkeypatch.setattr(projreg.evaluation.methods, "finer_flow", spy)
+    monkeypatch.setattr(projreg.inference.pipeline, "finer_flow", spy)
     method = projreg.evaluation.methods.model_methods(reference_checkpoint())[0]
     assert method.name == "reference"
     reader = ShardReader(tiny_val)

@@ -185,3 +185,66 @@ def test_a_ground_truth_flow_is_used_where_its_valid_says(tmp_path):
     assert result.exit_code == 0, result.stderr
     assert (out[20:40, 30:60] == 0).all()
     np.testing.assert_array_equal(out[:20, : W - 2], content[:20, 2:])
+
+
+def _shift_exr(path, dx, registered="yes"):
+    """A flow EXR as `projreg predict` writes one: a shift of (dx, 0) px claimed everywhere."""
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[..., 0] = dx
+    attrs = {"registered": registered, "camera_size": f"{H}x{W}", "valid_threshold": "confidence >= 0.5"}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(encode_flow_exr(flow, np.ones((H, W), bool), "x", attrs=attrs))
+
+
+def _cli(*args):
+    return CliRunner().invoke(app, ["compensate", *(str(a) for a in args)])
+
+
+def test_a_content_video_and_a_sequences_flows_give_the_projectors_video_frame_by_frame(tmp_path):
+    from projreg.inference.video import VideoFile, VideoWriter
+
+    frames = [_texture(10 + k) for k in range(3)]
+    with VideoWriter(tmp_path / "content.mkv", 24.0) as video:
+        for k, frame in enumerate(frames):
+            video.write(frame)
+            _shift_exr(tmp_path / "flows" / f"{k:06d}_flow.exr", 1.0 + k, "no" if k == 2 else "yes")
+            cv2.imwrite(str(tmp_path / f"c{k}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    result = _cli("--content", tmp_path / "content.mkv", "--flow", tmp_path / "flows", "--out", tmp_path / "p.mkv")
+    assert result.exit_code == 0, result.stderr
+    assert (
+        "1 of 3 frames' pairs were not registered" in result.stderr and "projector video of 3 frames" in result.stderr
+    )
+    shown = list(VideoFile(tmp_path / "p.mkv", "--out"))
+    assert VideoFile(tmp_path / "p.mkv", "--out").fps == 24.0  # the content's rate
+    for k, frame in enumerate(shown):  # each frame is what compensate writes for its content and flow
+        flow = tmp_path / "flows" / f"{k:06d}_flow.exr"
+        assert _cli("--content", tmp_path / f"c{k}.png", "--flow", flow, "--out", tmp_path / f"p{k}.png").exit_code == 0
+        np.testing.assert_array_equal(frame, cv2.cvtColor(cv2.imread(str(tmp_path / f"p{k}.png")), cv2.COLOR_BGR2RGB))
+    # a still content on a moving rig, at --fps; a content video on a fixed rig (one flow)
+    still = _cli(
+        "--content", tmp_path / "c0.png", "--flow", tmp_path / "flows", "--out", tmp_path / "s.mkv", "--fps", 10
+    )
+    assert still.exit_code == 0, still.stderr
+    video = VideoFile(tmp_path / "s.mkv", "--out")
+    assert len(list(video)) == 3 and video.fps == 10
+    one = tmp_path / "flows" / "000000_flow.exr"
+    assert _cli("--content", tmp_path / "content.mkv", "--flow", one, "--out", tmp_path / "f.mkv").exit_code == 0
+    assert len(list(VideoFile(tmp_path / "f.mkv", "--out"))) == 3
+
+
+def test_a_content_video_and_flows_that_do_not_pair_are_one_line_and_write_nothing(tmp_path, one_line_error):
+    from projreg.inference.video import VideoWriter
+
+    with VideoWriter(tmp_path / "content.mkv", 30.0) as video:
+        for k in range(3):
+            video.write(_texture(k))
+    for k in range(2):
+        _shift_exr(tmp_path / "flows" / f"{k:06d}_flow.exr", 1.0)
+    content, flows = tmp_path / "content.mkv", tmp_path / "flows"
+    args = ("--content", content, "--flow", flows, "--out")
+    one_line_error(_cli(*args, tmp_path / "p.mkv"), "--content", "has 3 frames but --flow", "holds 2 flow EXRs")
+    one_line_error(_cli(*args, tmp_path / "p.png"), "--out", "a video is written as .mkv (FFV1)")
+    _shift_exr(tmp_path / "flows" / "000002_flow.exr", 1.0)
+    (tmp_path / "flows" / "000002_flow.exr").write_bytes(b"not an exr")  # a flow that does not read, last
+    one_line_error(_cli(*args, tmp_path / "p.mkv"), "000002_flow.exr")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["content.mkv", "flows"]  # no video, no temporary

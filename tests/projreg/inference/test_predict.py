@@ -272,3 +272,91 @@ def test_track_mode_divides_every_frame_by_the_same_photos(tiny_sequences, tiny_
         frames[0]["projected"], frames[0]["captured"], white=white, black=black
     )
     np.testing.assert_allclose(read_flow_exr(out / "00_flow.exr")[0], first.flow, atol=1e-4)
+
+
+def _frames_as_folders_and_videos(tiny_sequences, tmp_path, count=3):
+    """One sequence's frames written as two folders of PNGs and two lossless (FFV1) videos."""
+    from projreg.inference.video import VideoWriter
+
+    reader = ShardReader(tiny_sequences)
+    try:
+        frames = [reader.read(k) for k in range(count)]
+    finally:
+        reader.close()
+    for side in ("projected", "captured"):
+        with VideoWriter(tmp_path / f"{side}.mkv", 30.0) as video:
+            for s in frames:
+                _write(tmp_path / side / f"{s['params']['frame']:02d}.png", s[side])
+                video.write(s[side])
+    return frames
+
+
+def test_track_on_lossless_videos_gives_the_flows_of_the_folders_of_their_frames(tiny_sequences, tiny_ckpt, tmp_path):
+    _frames_as_folders_and_videos(tiny_sequences, tmp_path)
+    for track in (["--track"], []):
+        outs = {}
+        for kind, p, c in (
+            ("folders", tmp_path / "projected", tmp_path / "captured"),
+            ("videos", tmp_path / "projected.mkv", tmp_path / "captured.mkv"),
+            ("mixed", tmp_path / "projected", tmp_path / "captured.mkv"),
+        ):
+            out = outs[kind] = tmp_path / f"out-{kind}{'-track' * bool(track)}"
+            result = _cli(
+                "--projected", p, "--captured", c, "--out", out, "--model", tiny_ckpt, "--quality", "fast", *track
+            )
+            assert result.exit_code == 0, (result.stderr, result.exception)
+        folders = sorted(outs["folders"].glob("*.exr"))
+        for kind in ("videos", "mixed"):
+            videos = sorted(outs[kind].glob("*.exr"))
+            assert [p.name for p in videos] == ["000000_flow.exr", "000001_flow.exr", "000002_flow.exr"]
+            for a, b in zip(folders, videos, strict=True):
+                (fa, va, ha), (fb, vb, hb) = read_flow_exr(a), read_flow_exr(b)
+                np.testing.assert_array_equal(fa, fb)
+                np.testing.assert_array_equal(va, vb)
+                assert ha.get("tracking") == hb.get("tracking") and hb["sample_id"].startswith("captured.mkv#0000")
+
+
+def test_a_still_projected_image_pairs_with_every_captured_frame(tiny_sequences, tiny_ckpt, tmp_path):
+    frames = _frames_as_folders_and_videos(tiny_sequences, tmp_path, count=2)
+    still = _write(tmp_path / "content.png", frames[0]["projected"])  # the content stays fixed over a sequence
+    out = tmp_path / "out"
+    result = _cli("--projected", still, "--captured", tmp_path / "captured.mkv", "--out", out, "--model", tiny_ckpt)
+    assert result.exit_code == 0, (result.stderr, result.exception)
+    registrar = Registrar(tiny_ckpt, device="cpu")
+    for k, s in enumerate(frames):
+        flow, valid, _ = read_flow_exr(out / f"{k:06d}_flow.exr")
+        expected = registrar.register(frames[0]["projected"], s["captured"])
+        np.testing.assert_allclose(flow, expected.flow, atol=1e-4)
+
+
+def test_videos_that_do_not_pair_are_one_line_and_nothing_is_written(
+    tiny_sequences, tiny_ckpt, tmp_path, one_line_error
+):
+    from projreg.inference.video import VideoWriter
+
+    frames = _frames_as_folders_and_videos(tiny_sequences, tmp_path)
+    with VideoWriter(tmp_path / "short.mkv", 30.0) as video:
+        for s in frames[:2]:
+            video.write(s["captured"])
+    out = tmp_path / "out"
+    args = ("--out", out, "--model", tiny_ckpt, "--track")
+    one_line_error(
+        _cli("--projected", tmp_path / "projected.mkv", "--captured", tmp_path / "short.mkv", *args),
+        "--projected",
+        "has 3 frames but --captured",
+        "has 2",
+        "nothing was written",
+    )
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes((tmp_path / "captured.mkv").read_bytes()[:-400])
+    one_line_error(
+        _cli("--projected", tmp_path / "projected.mkv", "--captured", cut, *args), "--captured", "cannot be read"
+    )
+    cv2.imwrite(str(tmp_path / "captured" / "02.png"), np.zeros((48, 96, 3), np.uint8))  # the camera changed size
+    one_line_error(
+        _cli("--projected", tmp_path / "projected.mkv", "--captured", tmp_path / "captured", *args),
+        "--captured",
+        "02.png is 96x48 px",
+        "nothing was written",
+    )
+    assert not out.exists()
