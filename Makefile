@@ -147,8 +147,9 @@ results: setup
 # Re-measure one evaluation set at the checked-out commit, then rewrite the page: bench/record.py SET runs the
 # set's commands at their stated sizes on one core (about 15 min at most each; data under build/results/) and
 # stores its reports and metadata in docs/results/. SET: synthetic, real, hard, decode, compensation, tracking,
-# external, or latency (on an idle machine only: the one set whose timings the page shows; THREADS=N to give it N
-# cores, e.g. `make results-latency THREADS=2`). results-all: every set but latency, about an hour on one core.
+# external, warp, or latency and live (on an idle machine only: the sets whose timings the page shows; THREADS=N for N
+# cores, e.g. `make results-latency THREADS=2`, `make results-live THREADS=2`). results-all: every set but the
+# two timed ones (latency, live), about an hour on one core.
 THREADS ?= 1
 results-all: setup
 	$(PY) bench/record.py --all --threads $(THREADS)

@@ -77,8 +77,9 @@ class ResultSet:
     """An evaluation set: ``prepare`` makes its data, each of ``runs`` writes a report.
 
     ``kind`` says how the page reads the reports: ``bench`` (``projreg bench --json``), ``decode``
-    (``bench/bench_decode.py``), ``external`` (``bench/external_rig.py``) or ``latency`` (a bench
-    report of which only the timings are shown, each beside its ratio to the method ``peer``).
+    (``bench/bench_decode.py``), ``external`` (``bench/external_rig.py``), ``warp``
+    (``bench/bench_warp.py``), ``live`` (``bench/bench_live.py``, timed) or ``latency`` (a bench report of
+    which only the timings are shown, each beside its ratio to the method ``peer``).
     ``about`` is the set's paragraph on the page.
     """
 
@@ -252,6 +253,40 @@ SETS = (
         ),
     ),
     ResultSet(
+        "warp",
+        "Warp maps for show software",
+        "warp",
+        "`projreg warp`'s files applied as show software applies them (`bench/bench_warp.py`, docs/show.md): "
+        "the STMap (`.exr`) remapped, each mesh (`.obj`, a vertex every 8, 16 or 32 projector pixels) "
+        "rasterised with its texture coordinates linear over each triangle, the `cv2.remap` maps (`.npz`), "
+        "against `projreg compensate`'s image of the same flow; the flows `projreg predict`'s on pictures the "
+        "model never saw (`bench/real_sources.py`) under seven transforms of the table.",
+        (
+            f"python bench/real_sources.py --out {_B}/warp/sources",
+            _gen(
+                f"{_B}/warp/data",
+                f"--natural {_B}/warp/sources/natural --generated {_B}/warp/sources/generated --split all "
+                "--pairs 1 --seed 5 --transforms 12,27,48,85,112,127,148",
+            ),
+        ),
+        (Run("warp.json", f"python bench/bench_warp.py --data {_B}/warp/data --out {RESULTS / 'warp.json'}"),),
+    ),
+    ResultSet(
+        "live",
+        "The live loop",
+        "live",
+        "`projreg live` on moving-rig sequences played as a camera in real time (`bench/bench_live.py`, "
+        "docs/show.md): six orbiting-rig sequences of 90 frames at 384 x 512 (a plane, a convex cylinder and a "
+        "wave, each pair in both roles), each a lossless video played at 30 fps, the content the sequence's "
+        "projected image, `--quality fast` (`live`'s default). Frames that arrive while one is registered are "
+        "dropped; latency runs from a frame's arrival to its pre-warped frame; EPEs pool the valid pixels of the "
+        "frames registered, tracked against registering each of them in full; the shown EPE is the flow each "
+        "pre-warp used against the truth of the camera frame on show when it was warped, without and with "
+        "`--predict-motion`. To be measured on an idle machine, with the threads stated.",
+        (),
+        (Run("live.json", f"python bench/bench_live.py --out {RESULTS / 'live.json'}"),),
+    ),
+    ResultSet(
         "latency",
         "Latency",
         "latency",
@@ -414,7 +449,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.all:
         for rs in SETS:
-            if rs.kind != "latency":
+            if rs.kind not in ("latency", "live"):  # timings: an idle machine, on their own
                 record(rs, args.threads, args.dry_run)
         return
     if args.list or args.set is None:

@@ -373,7 +373,64 @@ def large_pairs_run(report: dict) -> list[str]:
     ]
 
 
+def warp_run(report: dict) -> list[str]:
+    """``bench/bench_warp.py``: each warp file applied as a show tool applies it, against ``compensate``."""
+    rows = []
+    for r in report["rows"]:
+        mesh = "–" if "error_mean_px" not in r else f"{num(r['error_mean_px'])} / {num(r['error_max_px'])}"
+        rows.append(
+            [r["file"], num(r["grey_mean"]), str(r["grey_max"]), pct(r["covered"]), str(r["beyond"]), mesh]
+            + [num(r["kib_median"])]
+        )
+    header = ["file", "grey levels off, mean", "max", "covered %", "beyond", "mesh error mean / max (px)", "KiB"]
+    return [
+        para(
+            f"Data: {len(report['pairs'])} pairs of `{report['data']}`, every one registered by `projreg predict`; "
+            "differences from `projreg compensate`'s image where both show content (0..255), the share of its "
+            "pixels with content the file covers, pixels with content it leaves dark that the file lights "
+            "(`beyond`), the meshes' interpolation error in camera pixels, the median file size (the flow EXR: "
+            f"{num(report['flow_kib_median'])} KiB)."
+        ),
+        "",
+        table(header, rows),
+        "",
+    ]
+
+
+def live_run(report: dict) -> list[str]:
+    """``bench/bench_live.py``: the live loop on sequences played in real time, with and without prediction."""
+    pooled, seqs = report["pooled"], report["sequences"]
+    runs = [(q["sequence"], q["live"], q["live"]["shown_epe"], q["predicted"]["shown_epe"]) for q in seqs]
+    runs.append(("**all**", pooled, pooled["shown_epe"], pooled["shown_epe_predicted"]))
+    rows = [
+        [
+            name,
+            num(live["fps"]),
+            f"{num(live['latency_ms']['median'])} / {num(live['latency_ms']['p95'])}",
+            f"{live['frames_in']} / {live['registered']} / {live['dropped']}",
+            f"{num(live['epe_tracked'])} / {num(live['epe_per_frame'])} ({num(live['ratio'])})",
+            f"{num(plain)} / {num(predicted)}",
+        ]
+        for name, live, plain, predicted in runs
+    ]
+    load = ", ".join(f"{x:.2f}" for x in report["load_average"]["before"])
+    header = ["sequence", "registered frames/s", "latency median / p95 (ms)", "in / registered / dropped"]
+    header += ["EPE tracked / per frame (ratio)", "shown EPE: no prediction / predicted"]
+    return [
+        para(
+            f"Data: {len(report['sequences'])} sequences of {report['data']['frames']} frames at "
+            f"{report['data']['size']}, played at {report['data']['fps']} fps, `--quality {report['quality']}`; "
+            f"load average before {load} (1, 5, 15 min)."
+        ),
+        "",
+        table(header, rows),
+        "",
+    ]
+
+
 def missing(rs: ResultSet) -> list[str]:
+    if rs.kind == "live":
+        return [para(f"Not measured yet: `make results-{rs.name} THREADS=2` on an idle machine writes it."), ""]
     if rs.kind == "latency":
         return [
             para(
@@ -404,6 +461,10 @@ def section(rs: ResultSet, results: Path) -> list[str]:
             out += decode_run(report)
         elif rs.kind == "external":
             out += external_run(report)
+        elif rs.kind == "warp":
+            out += warp_run(report)
+        elif rs.kind == "live":
+            out += live_run(report)
         elif rs.kind == "latency":
             out += latency_run(report, meta) if "results" in report else large_pairs_run(report)
         else:
