@@ -16,6 +16,12 @@ mirrored matches agree on an orientation-reversing homography with at least ``mi
 and ``mirror_ratio`` times as many as the direct matches agree on (either way round): on a symmetric
 motif both sets find the true map, and on an unrelated or repetitive picture both find chance.
 
+A camera turned a quarter turn whose frames are resized to the projector's aspect (a portrait capture
+stretched to landscape) sees the projection stretched anisotropically, by the aspect squared, which SIFT
+does not match across: where the capture's features at its own aspect neither find a mirror nor
+establish a direct map, they are found again on the capture resized to the swapped aspect, and each
+count is the larger of the two (:func:`check`).
+
 Measured (docs/history/2026-12-05-honest-claims.md): every left-right and up-down mirror of the
 scikit-image pictures with texture 37-1,211 mirrored inliers against 0-12 direct; no pair of the results
 page's sets over 42 mirrored inliers, and none of those within the ratio.
@@ -82,6 +88,22 @@ class Handedness:
         """Whether the capture is the projection mirrored: ``mirrored >= min_inliers`` and ``>= ratio *
         direct``."""
         return self.mirrored >= min_inliers and self.mirrored >= ratio * self.direct
+
+    def settled(self, min_inliers: int, ratio: float) -> bool:
+        """Whether these counts decide the question: mirrored, or a direct map of ``min_inliers`` matches."""
+        return self.is_mirrored(min_inliers, ratio) or self.direct >= min_inliers
+
+
+def check(projected: Features, captured: np.ndarray, side: int, min_inliers: int, ratio: float) -> Handedness:
+    """The handedness of a uint8 gray capture against the projected image's features (found at ``side``):
+    at the capture's own aspect and, unless that settles it (:meth:`Handedness.settled`), at the swapped
+    one (module docstring), each count the larger of the two."""
+    hand = handedness(projected, Features.of(captured, side))
+    h, w = captured.shape[:2]
+    if h == w or hand.settled(min_inliers, ratio):
+        return hand
+    swapped = handedness(projected, Features.of(cv2.resize(captured, (h, w), interpolation=cv2.INTER_AREA), side))
+    return Handedness(max(hand.direct, swapped.direct), max(hand.mirrored, swapped.mirrored))
 
 
 def handedness(projected: Features, captured: Features) -> Handedness:

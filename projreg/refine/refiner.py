@@ -77,7 +77,7 @@ from .candidates import (
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
 from .evidence import registers, repeat_jobs, repeats_in, unverified
-from .handedness import Features, Handedness, handedness
+from .handedness import Features, Handedness, check
 from .search import Search
 from .selection import rivals, select
 from .stages import gather, stage, submit
@@ -296,10 +296,10 @@ class GeometricRefiner:
     def _handedness(self, ctx: PairContext) -> Handedness:
         """The pair's direct and mirrored SIFT consensus (:mod:`~projreg.refine.handedness`) on its images
         shrunk to ``confidence.mirror_side``; the projected image's features are kept with its side."""
-        side = self.config.confidence.mirror_side
+        cfg = self.config.confidence
         if ctx.side.features is None:
-            ctx.side.features = Features.of(ctx.side.plain, side)
-        return handedness(ctx.side.features, Features.of(ctx.plain[1], side))
+            ctx.side.features = Features.of(ctx.side.plain, cfg.mirror_side)
+        return check(ctx.side.features, ctx.plain[1], cfg.mirror_side, cfg.mirror_inliers, cfg.mirror_ratio)
 
     def _registers(self, claimed: np.ndarray) -> bool:
         """Whether ``claimed`` registers the pair (:func:`~projreg.refine.evidence.registers`)."""

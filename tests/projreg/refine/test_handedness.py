@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from projreg.refine.handedness import MIRRORED, Features, handedness
+from projreg.refine.handedness import MIRRORED, Features, check, handedness
 
 
 @pytest.fixture(scope="module")
@@ -47,3 +47,20 @@ def test_pictures_without_features_are_not_mirrored():
     flat = np.full((64, 80), 128, np.uint8)
     hand = handedness(Features.of(flat, 256), Features.of(flat, 256))
     assert (hand.direct, hand.mirrored) == (0, 0)
+
+
+@pytest.mark.parametrize("turn, mirrored", [(lambda g: g.T, True), (np.rot90, False)])
+def test_a_camera_turned_a_quarter_and_stretched_to_the_projectors_aspect(turn, mirrored):
+    """A portrait capture resized to the landscape projector's aspect (a 1.78x anisotropic stretch, which
+    SIFT does not match across): the coins transposed (a mirror) are found mirrored at the swapped aspect,
+    though not at their own; the coins turned a quarter (not a mirror) are not."""
+    skimage = pytest.importorskip("skimage.data")
+    gray = cv2.resize(skimage.coins(), (256, 192), interpolation=cv2.INTER_AREA)
+    capture = cv2.resize(np.ascontiguousarray(turn(gray)), (256, 192), interpolation=cv2.INTER_AREA)
+    projected = Features.of(gray, 256)
+    hand = check(projected, capture, 256, 30, 3.0)
+    assert hand.is_mirrored(30, 3.0) == mirrored, hand
+    if mirrored:  # the capture's own aspect alone did not say
+        assert not handedness(projected, Features.of(capture, 256)).is_mirrored(30, 3.0)
+    else:  # the direct map is found at the swapped aspect
+        assert hand.direct >= 30, hand
