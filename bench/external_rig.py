@@ -8,7 +8,8 @@ is independent of the simulator the network was trained on:
 
 * **Geometry**: a forward map ``F`` from projector pixel ``p`` to camera pixel ``q``: a homography
   (keystone, rotation, shift up to 60 px) followed by one of a sinusoidal bend (a warped sheet), a
-  dome, a camera lens (radial distortion) or a fold (two planes meeting at a vertical edge). The
+  dome, a camera lens (radial distortion) or a fold (two planes meeting at a vertical edge); on request
+  (``--shape bumps``, not in the rotation) a dozen bumps and dents a few tens of pixels wide. The
   captured image is rendered by inverting ``F`` at every camera pixel (Newton's method, to 1e-4 px);
   the ground-truth flow is ``F(p) - p``, valid where ``F(p)`` falls inside the camera frame.
 * **Light**: the projected sRGB picture is linearised (gamma 2.2), mixed by a colour cross-talk
@@ -65,6 +66,7 @@ PICTURES = (
 )
 ONE_SIDED = ("astronaut", "coffee", "rocket")
 SHAPES = ("bend", "dome", "lens", "fold")
+MORE_SHAPES = ("bumps",)  # only asked for by --shape (the rotation above stays as recorded)
 ALBEDOS = ("plain", "stripes", "plaster", "brick")
 MORE_ALBEDOS = ("plaid",)  # only asked for by --albedo (the rotation above stays as recorded)
 RESPONSES = ("gamma", "s-curve", "linear")
@@ -128,6 +130,18 @@ def surface_map(shape: str, rng: np.random.Generator, h: int, w: int):
     if shape == "lens":
         k1 = rng.uniform(-0.12, 0.08)
         return lambda q: centre + (q - centre) * (1 + k1 * (((q - centre) / size) ** 2).sum(axis=-1, keepdims=True))
+    if shape == "bumps":  # a dozen round bumps and dents, seen with a parallax along one direction
+        centres = rng.uniform([0, 0], [w, h], (12, 2))
+        heights, widths = rng.uniform(4, 9, 12) * rng.choice([-1, 1], 12), rng.uniform(0.06, 0.1, 12) * size
+        angle = rng.uniform(0, 2 * np.pi)
+        along = np.array([np.cos(angle), np.sin(angle)])
+
+        def bumps(q):
+            d2 = ((q[..., None, :] - centres) ** 2).sum(axis=-1)
+            depth = (heights * np.exp(-d2 / (2 * widths**2))).sum(axis=-1, keepdims=True)
+            return q + depth * along
+
+        return bumps
     if shape == "fold":  # two planes meeting at a vertical edge: a kink of the slope there
         edge, slope = rng.uniform(0.35, 0.65) * w, rng.uniform(0.04, 0.09) * rng.choice([-1, 1])
         return lambda q: q + np.stack([slope * np.abs(q[..., 0] - edge), 0 * q[..., 1]], axis=-1)
@@ -358,7 +372,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--limit", type=int, default=0, help="only the first N pairs (0: all)")
     ap.add_argument("--predict-args", default="", help="extra options for projreg predict, e.g. '--fast'")
-    ap.add_argument("--shape", choices=SHAPES, help="every pair on this surface (default: they rotate)")
+    ap.add_argument("--shape", choices=SHAPES + MORE_SHAPES, help="every pair on this surface (default: they rotate)")
     ap.add_argument("--albedo", choices=ALBEDOS + MORE_ALBEDOS, help="every pair on this wall (default: they rotate)")
     ap.add_argument("--response", choices=RESPONSES, help="every pair through this camera response")
     ap.add_argument("--ambient", type=float, help="every pair under this ambient light (0: dark room)")
