@@ -22,7 +22,6 @@ def pixel_confidence(
     radius: float,
     cfg: ConfidenceConfig,
     tensor: np.ndarray | None = None,
-    flow: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-pixel confidence of a flow in [0, 1]: checks on the textured pixels, spread to their
     neighbourhood (the smooth surface model interpolates between them), nothing far from texture.
@@ -40,8 +39,7 @@ def pixel_confidence(
     a flat region far from any texture gets 0 whatever the flow. With ``tensor``, the result is
     limited by how well the passing texture around the pixel fixes a position in both directions
     (:func:`spanned`, over ``cfg.span_radii`` times ``radius``, the reach of the surface model's
-    coupling, less where ``flow`` bends): along a lone edge or a set of parallel ones a flow can slide
-    without failing any check.
+    coupling): along a lone edge or a set of parallel ones a flow can slide without failing any check.
 
     Args:
         texture: the projected image's texture weight in [0, 1] (absolute floor), float ``(H, W)``.
@@ -49,8 +47,6 @@ def pixel_confidence(
         radius: Gaussian sigma of the fine neighbourhood, px.
         cfg: the pass marks' break points and the densities.
         tensor: the projected image's gradient products ``(gx^2, gx gy, gy^2)``, float ``(H, W, 3)``.
-        flow: the answer, float ``(H, W, 2)`` in the user's pixels: where it bends, the texture must fix a
-            position nearer (:func:`spanned_within`).
 
     Returns:
         float32 ``(H, W)``; the pixel is claimed where it is at least ``CONFIDENT``.
@@ -61,7 +57,7 @@ def pixel_confidence(
     coarse = neighbourhood(w, passed, 2 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
     out = np.maximum(fine, coarse)
     if tensor is not None:
-        out = out * spanned_within(tensor, w * passed, radius, cfg, flow)
+        out = out * spanned(tensor, w * passed, cfg.span_radii * radius, cfg)
     return out.astype(np.float32)
 
 
@@ -73,7 +69,6 @@ def gap_confidence(
     radius: float,
     cfg: ConfidenceConfig,
     tensor: np.ndarray | None = None,
-    flow: np.ndarray | None = None,
 ) -> np.ndarray:
     """The checks' verdict carried across a wide flat gap: the pass marks (:func:`pixel_confidence`'s
     inputs) averaged at four times the sigma ``radius``, from a texture density of ``cfg.coarse_sparse``.
@@ -85,7 +80,7 @@ def gap_confidence(
     passed = pass_marks(ncc, residual, spread, cfg)
     texture = np.asarray(texture, np.float32)
     gap = neighbourhood(texture, passed, 4 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
-    return gap if tensor is None else gap * spanned_within(tensor, texture * passed, radius, cfg, flow)
+    return gap if tensor is None else gap * spanned(tensor, texture * passed, cfg.span_radii * radius, cfg)
 
 
 def pass_marks(ncc: np.ndarray, residual: np.ndarray, spread: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
@@ -123,51 +118,6 @@ def neighbourhood(
         return agree / np.maximum(density, 1e-6) * ramp(density, sparse, dense)
 
     return averaged([texture, texture * passed], sigma, shrunk, share)
-
-
-def spanned_within(
-    tensor: np.ndarray, weight: np.ndarray, radius: float, cfg: ConfidenceConfig, flow: np.ndarray | None = None
-) -> np.ndarray:
-    """:func:`spanned` over ``cfg.span_radii`` radii; with ``flow`` (its values in the user's pixels) and
-    ``cfg.span_bend_px``, over a reach that the flow's bending shortens (:func:`reach`), between one radius
-    and that many: the texture must fix a position within the distance over which the flow is near affine,
-    since farther on the surface may bend in a way that texture elsewhere says nothing of."""
-    if flow is None or cfg.span_bend_px is None:
-        return spanned(tensor, weight, cfg.span_radii * radius, cfg)
-    levels = [1.0, 2.0, 4.0]  # radii, each twice the last; the reach interpolates between them on a log scale
-    levels = [r for r in levels if r < cfg.span_radii] + [cfg.span_radii]
-    spans = [spanned(tensor, weight, r * radius, cfg) for r in levels]
-    at = np.log2(np.clip(reach(flow, weight, radius, cfg) / radius, levels[0], levels[-1]))
-    marks = np.log2(levels)
-    out = spans[0]
-    for k in range(1, len(levels)):
-        t = np.clip((at - marks[k - 1]) / (marks[k] - marks[k - 1]), 0.0, 1.0)
-        out = np.where(at > marks[k - 1], (1 - t) * spans[k - 1] + t * spans[k], out)
-    return out.astype(np.float32)
-
-
-def reach(flow: np.ndarray, weight: np.ndarray, radius: float, cfg: ConfidenceConfig) -> np.ndarray:
-    """The distance (px) over which ``flow`` stays within ``cfg.span_bend_px`` of a straight interpolation,
-    ``sqrt(2 span_bend_px / bending)``, with the bending the Frobenius norm of the flow's second derivatives
-    (both components, at sigma ``radius``) averaged over ``weight`` (the passing texture) around each pixel,
-    a Gaussian of ``cfg.span_radii`` radii: the bending where the flow is seen, not where it interpolates."""
-    h, w = weight.shape
-    f = max(1, int(radius // cfg.shrunk_sigma))
-    small = (max(1, w // f), max(1, h // f))
-    bend = np.zeros((small[1], small[0]), np.float32)
-    for k in range(2):
-        a = cv2.resize(np.ascontiguousarray(flow[..., k], np.float32), small, interpolation=cv2.INTER_AREA)
-        pad = int(np.ceil(4 * radius / f))  # an odd reflection about the edge continues a plane: no bend there
-        a = np.pad(a, pad, mode="reflect", reflect_type="odd")
-        gy, gx = np.gradient(cv2.GaussianBlur(a, (0, 0), radius / f)[pad:-pad, pad:-pad])
-        gxy, gxx = np.gradient(gx)
-        bend += gxx**2 + 2 * gxy**2 + np.gradient(gy)[0] ** 2
-    bend = np.sqrt(bend) / (f * f)  # px per px^2 on the full grid
-    s = cv2.resize(np.asarray(weight, np.float32), small, interpolation=cv2.INTER_AREA)
-    sigma = cfg.span_radii * radius / f
-    seen = gaussian(s * bend, sigma) / np.maximum(gaussian(s, sigma), 1e-6)
-    out = np.sqrt(2 * cfg.span_bend_px / np.maximum(seen, 1e-9))
-    return cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def spanned(tensor: np.ndarray, weight: np.ndarray, sigma: float, cfg: ConfidenceConfig) -> np.ndarray:

@@ -147,8 +147,6 @@ class ConfidenceConfig:
     span_fail: float = 0.03  # ... fixes no position along its edges when the smaller eigenvalue of its structure
     # tensor is at most this share of the larger (edges of one direction: a flow may slide along them) ...
     span_pass: float = 0.06  # ... and fixes it in both directions from this share on
-    span_bend_px: float | None = 1.0  # ... the reach shortened, down to one radius, to where the flow's bending
-    # seen around the pixel would move a straight interpolation by this (px; None: the full reach always)
     registered_above: float = 0.01  # a pair whose claimed share is below this is not registered ...
     registered_windows: float = 6.0  # ... nor one whose claim covers fewer NCC windows than this (0: none; area
     # pi (2 selection.ncc_sigma)^2 each): photos of another picture pass the checks by chance on up to 4 of them

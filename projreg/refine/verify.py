@@ -31,7 +31,7 @@ def confidence(
     of :func:`checks`); 0 where the projected image repeats itself (``repeats``)."""
     cfg = ctx.config.confidence
     maps, radius = checks(ctx, cands, scores, best, dis), cfg.radius * max(ctx.shape)
-    conf = pixel_confidence(ctx.evidence, *maps, radius, cfg, ctx.side.tensor, user_flow(ctx, best))
+    conf = pixel_confidence(ctx.evidence, *maps, radius, cfg, ctx.side.tensor)
     return conf if repeats is None else np.where(repeats, 0.0, conf).astype(np.float32)
 
 
@@ -51,12 +51,6 @@ def checks(
         ctx.memo[key] = ambiguity(ctx, cands, scores, best, ncc, margin)
     spread = ctx.memo[key]
     return (ncc, residual, spread) if ctx.scale == 1 else (ncc, ctx.scale * residual, ctx.scale * spread)
-
-
-def user_flow(ctx: PairContext, best: Candidate) -> np.ndarray:
-    """``best``'s flow in the pair's own pixels per pixel of the context (``ctx.scale``): its bending's
-    interpolation error is then read in the user's pixels, as :func:`checks`' distances are."""
-    return best.flow if ctx.scale == 1 else ctx.scale * best.flow
 
 
 def bridged(
@@ -82,7 +76,7 @@ def bridged(
     )
     radius = cfg.confidence.radius * max(h, w)
     maps = checks(ctx, cands, scores, best, workers.dis_flows)
-    gap = gap_confidence(ctx.evidence, *maps, radius, cfg.confidence, ctx.side.tensor, user_flow(ctx, best))
+    gap = gap_confidence(ctx.evidence, *maps, radius, cfg.confidence, ctx.side.tensor)
     found = fitting.result()
     if found is None:
         return conf

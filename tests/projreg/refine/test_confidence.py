@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 
 from projreg.prediction import CONFIDENT
-from projreg.refine.confidence import neighbourhood, pixel_confidence, reach, spanned_within
+from projreg.refine.confidence import neighbourhood, pixel_confidence
 from projreg.refine.config import ConfidenceConfig
 
 
@@ -62,37 +62,3 @@ def test_a_wide_neighbourhood_on_the_shrunk_grid_matches_the_full_size_one():
         shrunk = neighbourhood(texture, passed, sigma, 0.1)
         assert shrunk.shape == (h, w) and np.abs(shrunk - full_size(sigma)).max() < 0.025, sigma
     np.testing.assert_allclose(neighbourhood(texture, passed, 11.0, 0.1), full_size(11.0), atol=1e-5)  # not shrunk
-
-
-def _bent(h: int, w: int, bending: float) -> np.ndarray:
-    """A flow whose horizontal component bends by ``bending`` px per px^2 along x, over a homography-like
-    affine part: ``u = 3 + 0.02 x + bending x^2 / 2``, ``v = -0.01 y``."""
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
-    return np.dstack([3 + 0.02 * x + bending * x * x / 2, -0.01 * y]).astype(np.float32)
-
-
-def test_the_reach_is_where_the_bending_moves_a_straight_interpolation_by_the_tolerance():
-    """``sqrt(2 tol / bending)``: a parabola of curvature 0.002 leaves its chord by 1 px over 31.6 px."""
-    cfg = ConfidenceConfig(span_bend_px=1.0)
-    weight = np.ones((200, 320), np.float32)
-    got = reach(_bent(200, 320, 0.002), weight, 10.0, cfg)[60:-60, 80:-80]  # four radii from the edge, where
-    assert np.allclose(got, np.sqrt(2 / 0.002), rtol=0.03), (got.min(), got.max())  # the flow is continued flat
-    assert reach(_bent(200, 320, 0.0), weight, 10.0, cfg).min() > 400  # affine: float32's rounding only
-
-
-def test_on_a_bending_flow_the_texture_must_fix_a_position_nearer():
-    """Edges of one direction on the left, of the other on the right: 30 px from the border both are within
-    four radii (10 px) and a position is fixed there, unless the flow bends so much that only a radius or
-    two of it is near affine (within ``span_bend_px``); a plane never shortens the reach."""
-    h, w, radius = 96, 240, 10.0
-    tensor = np.zeros((h, w, 3), np.float32)
-    tensor[:, : w // 2, 0] = 1.0  # vertical edges: x fixed, y free
-    tensor[:, w // 2 :, 2] = 1.0  # horizontal edges
-    weight = np.ones((h, w), np.float32)
-    cfg = ConfidenceConfig(span_bend_px=1.0)
-    at = (slice(30, -30), slice(w // 2 - 32, w // 2 - 28))
-    plane = spanned_within(tensor, weight, radius, cfg, _bent(h, w, 0.0))[at]
-    assert plane.min() == 1.0
-    assert np.array_equal(plane, spanned_within(tensor, weight, radius, ConfidenceConfig(), None)[at])
-    bent = spanned_within(tensor, weight, radius, cfg, _bent(h, w, 0.02))[at]  # reach 10 px: one radius
-    assert bent.max() < 0.05
