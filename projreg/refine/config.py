@@ -162,7 +162,8 @@ class ConfidenceConfig:
     mirror_side: int | None = 256  # a registered pair's images, shrunk to this side, are checked for a mirrored
     # capture (:mod:`~projreg.refine.handedness`; None: not checked) ...
     mirror_inliers: int = 30  # ... which is mirrored when at least this many mirrored SIFT matches agree ...
-    mirror_ratio: float = 3.0  # ... and this many times as many as the direct matches do
+    mirror_ratio: float = 3.0  # ... and this many times as many as the direct matches do; from this many mirrored
+    mirror_scored: int = 10  # matches (same ratio), mirrored when their homography scores above the answer
 
 
 @dataclass(frozen=True)
@@ -247,10 +248,10 @@ class RefineConfig:
         co = self.confidence
         if co.mirror_side is not None and co.mirror_side < MIN_SIDE:
             raise ProjregError(f"refine confidence.mirror_side must be >= {MIN_SIDE} or None, got {co.mirror_side}")
-        if co.mirror_inliers < 4 or not co.mirror_ratio >= 1:
+        if min(co.mirror_inliers, co.mirror_scored) < 4 or not co.mirror_ratio >= 1:
             raise ProjregError(
-                "refine confidence.mirror_inliers must be >= 4 (a homography's points) and mirror_ratio >= 1, "
-                f"got {co.mirror_inliers}, {co.mirror_ratio}"
+                "refine confidence.mirror_inliers and mirror_scored must be >= 4 (a homography's points) and "
+                f"mirror_ratio >= 1, got {co.mirror_inliers}, {co.mirror_scored}, {co.mirror_ratio}"
             )
         for name in ("plane_margin", "plane_agree_px"):
             if not getattr(self.selection, name) >= 0:

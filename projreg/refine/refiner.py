@@ -276,7 +276,7 @@ class GeometricRefiner:
         verified = claimed.mean() >= cfg.registered_above  # some region verified: the search's answer stands
         why = "" if self._registers(claimed) else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if search.mirror is not None and not why:
-            why = mirrored(search.mirror.result(), cfg.mirror_inliers, cfg.mirror_ratio)
+            why = self._mirrored(search)
         elif search.mirror is not None:
             search.mirror.cancel()  # not asked: the pair is not registered anyway
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
@@ -300,6 +300,19 @@ class GeometricRefiner:
         if ctx.side.features is None:
             ctx.side.features = Features.of(ctx.side.plain, cfg.mirror_side)
         return check(ctx.side.features, ctx.plain[1], cfg.mirror_side, cfg.mirror_inliers, cfg.mirror_ratio)
+
+    def _mirrored(self, search: Search) -> str:
+        """Why the search's registered answer is a mirrored capture's (``""``: it is not). Mirrored when the
+        mirrored SIFT consensus is ``mirror_inliers`` strong, or ``mirror_scored`` strong and its homography
+        scores above the answer (:mod:`~projreg.refine.handedness`); both ``mirror_ratio`` times the direct."""
+        cfg, ctx, best = self.config.confidence, search.ctx, search.best
+        hand: Handedness = search.mirror.result()
+        if hand.is_mirrored(cfg.mirror_inliers, cfg.mirror_ratio):
+            return mirrored(hand)
+        if hand.mirror is None or not hand.is_mirrored(cfg.mirror_scored, cfg.mirror_ratio):
+            return ""
+        seen, answer = ctx.score("mirror", hand.mirror_flow(ctx.shape)), ctx.score(best.key, best.flow)
+        return mirrored(hand, (seen, answer)) if seen > answer else ""
 
     def _registers(self, claimed: np.ndarray) -> bool:
         """Whether ``claimed`` registers the pair (:func:`~projreg.refine.evidence.registers`)."""
@@ -422,12 +435,12 @@ class GeometricRefiner:
         return out
 
 
-def mirrored(hand: Handedness, min_inliers: int, ratio: float) -> str:
-    """Why a pair whose capture is its projection mirrored is not registered (``""``: it is not mirrored)."""
-    if not hand.is_mirrored(min_inliers, ratio):
-        return ""
+def mirrored(hand: Handedness, scores: tuple[float, float] | None = None) -> str:
+    """Why a pair whose capture is its projection mirrored is not registered; ``scores``: the mirrored
+    homography's and the answer's, where they decided it."""
+    weighed = "" if scores is None else f"; the mirror scores {scores[0]:.2f} against the answer's {scores[1]:.2f}"
     return (
         f"mirrored: the captured image is the projected one mirrored ({hand.mirrored} SIFT matches agree on a "
-        f"mirror, {hand.direct} on a direct map): turn the camera's mirroring off, or flip the captured images "
-        "(a rear-projection screen filmed from the front)"
+        f"mirror, {hand.direct} on a direct map{weighed}): turn the camera's mirroring off, or flip the captured "
+        "images (a rear-projection screen filmed from the front)"
     )

@@ -43,10 +43,11 @@ def test_a_mirrored_camera_claims_nothing(registrar, name, flip):
         assert "flip the captured images" in reg.reason
 
 
-@pytest.mark.parametrize("name", ["coins", "horse"])
+@pytest.mark.parametrize("name", ["coins", "horse", "clock"])
 def test_a_mirrored_camera_turned_a_quarter_claims_nothing(registrar, name):
     """The capture transposed (a mirror about the diagonal) and resized back to the projector's aspect, as
-    a portrait camera's frames are: a 1.78x anisotropic stretch on top of the mirror."""
+    a portrait camera's frames are: a 1.78x anisotropic stretch on top of the mirror. The clock's face has
+    few keypoints (26 mirrored SIFT matches against 5 direct): its mirror is weighed by its score."""
     projected = picture(name)
     captured = cv2.resize(np.ascontiguousarray(projected.transpose(1, 0, 2)), SIZE, interpolation=cv2.INTER_AREA)
     reg = registrar.register(projected, captured)

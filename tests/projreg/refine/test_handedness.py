@@ -64,3 +64,18 @@ def test_a_camera_turned_a_quarter_and_stretched_to_the_projectors_aspect(turn, 
         assert not handedness(projected, Features.of(capture, 256)).is_mirrored(30, 3.0)
     else:  # the direct map is found at the swapped aspect
         assert hand.direct >= 30, hand
+
+
+def test_the_mirrored_homography_is_the_cameras_map():
+    """The transposed coins resized to the projector's aspect: the mirrored matches' homography, as a flow
+    on the pair's own grid, is the transposition and stretch written here, to a pixel."""
+    skimage = pytest.importorskip("skimage.data")
+    h, w = 192, 256
+    gray = cv2.resize(skimage.coins(), (w, h), interpolation=cv2.INTER_AREA)
+    capture = cv2.resize(np.ascontiguousarray(gray.T), (w, h), interpolation=cv2.INTER_AREA)
+    hand = check(Features.of(gray, 256), capture, 256, 30, 3.0)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    # projected (x, y) is the transposed image's (column y, row x), resized by w / h and h / w (pixel centres)
+    truth = np.stack([(y + 0.5) * w / h - 0.5 - x, (x + 0.5) * h / w - 0.5 - y], axis=-1)
+    error = np.linalg.norm(hand.mirror_flow((h, w)) - truth, axis=-1)
+    assert np.median(error) < 1.0 and np.percentile(error, 95) < 2.0, (np.median(error), error.max())
