@@ -255,7 +255,9 @@ def compensate(
         raise ProjregError("gamma is the assumption a measured response replaces; give one of the two")
     response = _response(response)
     if white is not None:
-        model = calibrate(check_image("white", white), check_image("black", black), gamma or 2.2, response=response)
+        model = calibrate(
+            check_image("white", white), check_image("black", black), 2.2 if gamma is None else gamma, response=response
+        )
         if white.shape[:2] != tuple(camera):
             raise ProjregError(f"white photo is {white.shape[:2]}, the registration's camera frame {tuple(camera)}")
         image = solve(resize_to(image, white.shape), model)[0]

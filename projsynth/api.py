@@ -81,6 +81,8 @@ def render_pair(
     if projected.shape != background.shape:
         raise ProjsynthError(f"projected {projected.shape} and background {background.shape} differ in size")
     check_size(tuple(projected.shape[:2]), "projected")
+    if not isinstance(seed, int | np.integer) or isinstance(seed, bool):
+        raise ProjsynthError(f"seed: expected an integer, got {seed!r}")
     count = len(builtin_table().configs)
     if not isinstance(transform, int | np.integer) or isinstance(transform, bool) or not 0 <= transform < count:
         raise ProjsynthError(f"transform: expected one built-in transform id 0..{count - 1}, got {transform!r}")
@@ -95,14 +97,28 @@ def make_patterns(kind: str, size: tuple[int, int], **options: int | tuple[int, 
     """A pattern set (``graycode``, ``dots``, ``opencv-graycode`` or ``response``) for a projector of
     ``size``; ``options`` as ``projsynth patterns``' (``period``, ``shifts``, ``grid``, ``levels``). Its
     ``images()`` are the patterns, uint8 ``(H, W)``, in projection order."""
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise ProjsynthError(f"{unknown[0]}: not an option of a pattern set; the options are {', '.join(OPTIONS)}")
+    if not isinstance(size, tuple | list):
+        raise ProjsynthError(f"size: expected (height, width), got {size!r}")
     return make_set(kind, tuple(size), **options)
+
+
+OPTIONS = ("period", "shifts", "grid", "levels")  # make_patterns' options, as ``projsynth patterns``'
+
+
+def _check_patterns(patterns: object) -> PatternSet:
+    if not isinstance(patterns, PatternSet):
+        raise ProjsynthError(f"patterns: expected a PatternSet (make_patterns' answer), got {type(patterns).__name__}")
+    return patterns
 
 
 def fit_device_response(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Response:
     """The camera's and the projector's response curves from the camera's photos of a ``response`` set
     (uint8 or uint16 RGB ``(Hc, Wc, 3)``, in projection order), as ``projsynth response`` fits them from
     files; ``projreg.api.compensate(response=...)`` takes the result."""
-    if patterns.kind != "response":
+    if _check_patterns(patterns).kind != "response":
         raise ProjsynthError(f"a {patterns.kind} set; the response is measured from make_patterns('response', ...)")
     if len(photos) != len(patterns.names):
         raise ProjsynthError(f"{len(photos)} photos for {len(patterns.names)} grey levels")
@@ -113,6 +129,7 @@ def decode_photos(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Corresp
     """The camera's photos of ``patterns`` (uint8 or uint16, gray ``(Hc, Wc)`` or RGB, in projection order)
     decoded: ``flow`` and ``valid`` on the projector grid, ``stats``; as ``projsynth decode`` reads them
     from files (grey in [0, 1] at full bit depth, colour as the mean of the channels)."""
+    _check_patterns(patterns)
     if isinstance(photos, np.ndarray) or not isinstance(photos, Sequence) or not photos:
         raise ProjsynthError(
             f"photos: expected a non-empty sequence of images, one per pattern, got {type(photos).__name__}"

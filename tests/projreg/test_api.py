@@ -184,6 +184,10 @@ def test_bad_batches_frames_and_options_are_one_line_naming_the_argument(pairs, 
         (lambda: compensate(img1, reg_flow_only), r"^registration: expected a Registration"),
         (lambda: compensate(img1, registration, fill=300), r"^fill: must be an integer in 0..255"),
         (lambda: compensate(img1, registration, fill=-1), r"^fill: must be an integer in 0..255"),
+        (  # 0 is a value, not "unset": refused, not read as the default 2.2
+            lambda: compensate(img1, registration, white=img1, black=img1 // 4, gamma=0),
+            r"^--gamma: expected a display/camera gamma",
+        ),
         (
             lambda: compensate(np.zeros((0, 0, 3), np.uint8), registration),
             r"^content: 0x0 px; an image needs at least 8 px",

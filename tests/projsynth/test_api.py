@@ -68,6 +68,11 @@ def test_the_device_response_is_fitted_in_memory_as_the_command_fits_files():
         (lambda: projsynth.render_pair(*[np.zeros((64, 80, 3), np.uint8)] * 2, "0-3"), r"^transform: expected one"),
         (lambda: projsynth.render_pair(*[np.zeros((64, 80, 3), np.uint8)] * 2, 160), r"^transform: .* 0..159"),
         (lambda: projsynth.render_pair(*[np.zeros((0, 0, 3), np.uint8)] * 2, 0), r"^projected: expected"),
+        (lambda: projsynth.render_pair(*[np.zeros((64, 80, 3), np.uint8)] * 2, 0, seed=1.5), r"^seed: expected an int"),
+        (lambda: projsynth.make_patterns("graycode", (64, 80), colour=3), r"^colour: not an option .* period, shifts"),
+        (lambda: projsynth.make_patterns("graycode", "64x80"), r"^size: expected \(height, width\)"),
+        (lambda: projsynth.decode_photos(None, [np.zeros((8, 8), np.uint8)]), r"^patterns: expected a PatternSet"),
+        (lambda: projsynth.fit_device_response("response", []), r"^patterns: expected a PatternSet"),
         (
             lambda: projsynth.decode_photos(projsynth.make_patterns("graycode", (64, 80)), []),
             r"^photos: expected a non",
