@@ -18,7 +18,7 @@ from .dataset.plan import Sample, make_sample, resolve_plan
 from .dataset.shards import ShardReader
 from .dataset.transforms import builtin_table
 from .errors import ProjsynthError
-from .structured.decode import Correspondence, decode, require_in_projector
+from .structured.decode import Correspondence, decode, require_decoded, require_in_projector
 from .structured.patterns import PatternSet, check_size, make_set
 from .structured.response import Response, fit_response
 
@@ -134,10 +134,11 @@ def decode_photos(patterns: PatternSet, photos: Sequence[np.ndarray]) -> Corresp
         raise ProjsynthError(
             f"photos: expected a non-empty sequence of images, one per pattern, got {type(photos).__name__}"
         )
-    gray = [g if g.ndim == 2 else g[..., :3].mean(axis=-1) for g in _full_scale(photos, "photos")]
-    result = decode(patterns, np.stack(gray))
-    if patterns.kind == "opencv-graycode":  # the check `projsynth decode --layout opencv` makes
+    gray = np.stack([g if g.ndim == 2 else g[..., :3].mean(axis=-1) for g in _full_scale(photos, "photos")])
+    result = decode(patterns, gray)
+    if patterns.kind == "opencv-graycode":  # the checks `projsynth decode` makes
         require_in_projector(result, patterns, "patterns")
+    require_decoded(result, patterns, gray, "photos")
     return result
 
 

@@ -199,7 +199,7 @@ def decode_folder(
     result = decode(patterns, photos)
     if projector is not None:
         require_in_projector(result, patterns, "--projector")
-    _require_decoded(result, patterns, photos, captures)
+    require_decoded(result, patterns, photos, f"--captures {captures}")
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
     record = {
@@ -260,9 +260,10 @@ def require_in_projector(result: Correspondence, patterns: PatternSet, option: s
         )
 
 
-def _require_decoded(result: Correspondence, patterns: PatternSet, photos: np.ndarray, captures: Path) -> None:
+def require_decoded(result: Correspondence, patterns: PatternSet, photos: np.ndarray, source: str) -> None:
     """Refuse a decode that found (almost) nothing: below ``MIN_DECODED`` of the projector's pixels
-    (``graycode``) or of its dots, naming the likely cause."""
+    (``graycode``) or of its dots, naming the likely cause; ``source`` names the photos (an option and
+    its folder, or an argument)."""
     if patterns.kind == "dots":
         share = result.stats["dots_decoded"] / max(result.stats["dots"], 1)
     else:
@@ -279,9 +280,7 @@ def _require_decoded(result: Correspondence, patterns: PatternSet, photos: np.nd
         )
     else:
         cause = "the photos are lit but do not decode: are they of these patterns, in this order, from one pose?"
-    raise ProjsynthError(
-        f"--captures {captures}: only {share:.1%} of the projector decoded (need >= {MIN_DECODED:.0%}); {cause}"
-    )
+    raise ProjsynthError(f"{source}: only {share:.1%} of the projector decoded (need >= {MIN_DECODED:.0%}); {cause}")
 
 
 def decode(patterns: PatternSet, photos: np.ndarray) -> Correspondence:

@@ -72,6 +72,12 @@ def test_the_device_response_is_fitted_in_memory_as_the_command_fits_files():
         (lambda: projsynth.make_patterns("graycode", (64, 80), colour=3), r"^colour: not an option .* period, shifts"),
         (lambda: projsynth.make_patterns("graycode", "64x80"), r"^size: expected \(height, width\)"),
         (lambda: projsynth.decode_photos(None, [np.zeros((8, 8), np.uint8)]), r"^patterns: expected a PatternSet"),
+        (  # the projector off: refused as `projsynth decode` refuses such photos, not an empty answer
+            lambda: projsynth.decode_photos(
+                projsynth.make_patterns("graycode", (64, 80)), [np.zeros((48, 64), np.uint8)] * 36
+            ),
+            r"^photos: only 0.0% of the projector decoded .* barely differ",
+        ),
         (lambda: projsynth.fit_device_response("response", []), r"^patterns: expected a PatternSet"),
         (
             lambda: projsynth.decode_photos(projsynth.make_patterns("graycode", (64, 80)), []),
