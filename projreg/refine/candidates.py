@@ -260,6 +260,22 @@ def realign(ctx: PairContext, best: Candidate, stop: Callable[[], bool] | None =
     return again
 
 
+def stays(ctx: PairContext, flow: np.ndarray, claimed: np.ndarray) -> float:
+    """The share of ``claimed``'s textured pixels that a coarse-to-fine direct alignment of the whole frame,
+    started from ``flow`` itself (:func:`aligned`, the normalised view), leaves within ``align.trust_px`` of
+    it (in the pair's own pixels, ``ctx.scale``); 1.0 when nothing textured is claimed.
+
+    A registration is a fixed point of that alignment: the images agree with it everywhere it holds, and
+    the coarse levels, which see the whole frame, have nothing to move. A chance match of a few regions
+    (a photo of another picture whose curves a flexible warp carried onto other curves) is a local
+    optimum of the patch-wise refinement, which the frame's alignment leaves."""
+    mask = claimed & ctx.textured
+    if not mask.any():
+        return 1.0
+    again = aligned(ctx, "normalised", flow, None, True)
+    return float((flow_distance(again, flow)[mask] <= ctx.config.align.trust_px / ctx.scale).mean())
+
+
 def smooth_rest(ctx: PairContext, rest: np.ndarray) -> np.ndarray:
     """What a flow adds to its homography, ``rest`` ``(H, W, 2)``, as a P-spline on the fine grid with bend
     ``align.bend_start``: its surface without noise finer than that grid, an alignment's start."""

@@ -164,6 +164,8 @@ class ConfidenceConfig:
     mirror_inliers: int = 30  # ... which is mirrored when at least this many mirrored SIFT matches agree ...
     mirror_ratio: float = 3.0  # ... and this many times as many as the direct matches do; from this many mirrored
     mirror_scored: int = 10  # matches (same ratio), mirrored when their homography scores above the answer
+    confirm_below: float = 0.5  # a registered claim under this share of the frame is aligned again from itself ...
+    confirm_share: float = 0.5  # ... and stands when this share of its claimed textured pixels stays (align.trust_px)
 
 
 @dataclass(frozen=True)
@@ -252,6 +254,11 @@ class RefineConfig:
             raise ProjregError(
                 "refine confidence.mirror_inliers and mirror_scored must be >= 4 (a homography's points) and "
                 f"mirror_ratio >= 1, got {co.mirror_inliers}, {co.mirror_scored}, {co.mirror_ratio}"
+            )
+        if not (0 <= co.confirm_below <= 1 and 0 <= co.confirm_share <= 1):
+            raise ProjregError(
+                f"refine confidence.confirm_below and confirm_share must be in 0..1, got {co.confirm_below}, "
+                f"{co.confirm_share}"
             )
         for name in ("plane_margin", "plane_agree_px"):
             if not getattr(self.selection, name) >= 0:

@@ -73,6 +73,7 @@ from .candidates import (
     network_starts,
     realign,
     sift_start,
+    stays,
 )
 from .config import DEFAULT_QUALITY, MIN_SIDE, QUALITIES, RefineConfig
 from .context import PairContext, Projected
@@ -279,6 +280,8 @@ class GeometricRefiner:
             why = self._mirrored(search)
         elif search.mirror is not None:
             search.mirror.cancel()  # not asked: the pair is not registered anyway
+        if not why and claimed.mean() < cfg.confirm_below:  # a small claim: is it the frame's alignment too?
+            why = unconfirmed(claimed, stays(ctx, best.flow, claimed), cfg.confirm_share, self.config.align.trust_px)
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
             conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers)
             claimed = conf >= CONFIDENT
@@ -433,6 +436,18 @@ class GeometricRefiner:
         out.mirror = search.mirror
         out.conf = self.confidence(ctx, cands, out.scores, best, repeats)
         return out
+
+
+def unconfirmed(claimed: np.ndarray, share: float, least: float, px: float) -> str:
+    """Why a small claim is not a registration: under ``least`` of its textured pixels (``share``) stayed within
+    ``px`` when the whole frame was aligned again from it (:func:`~projreg.refine.candidates.stays`)."""
+    if share >= least:
+        return ""
+    return (
+        f"unconfirmed: the {100 * claimed.mean():.1f}% of the frame that passes the checks moves when the whole frame "
+        f"is aligned again from it ({100 * share:.0f}% of its textured pixels stay within {px:g} px): a chance match "
+        "of a few regions, as a photo of another picture gives"
+    )
 
 
 def mirrored(hand: Handedness, scores: tuple[float, float] | None = None) -> str:

@@ -18,11 +18,13 @@ SIZE = (256, 192)  # W x H, the issue's size
 MOST = 0.01  # "no claim": at most this share of the frame
 
 
-def picture(name: str) -> np.ndarray:
+def picture(name: str, size: tuple[int, int] = SIZE) -> np.ndarray:
     image = np.asarray(getattr(skimage_data, name)())
     image = image.astype(np.uint8) * 255 if image.dtype == bool else image
+    if image.dtype != np.uint8:  # the phantom: floats in [0, 1]
+        image = (255 * (image - image.min()) / max(float(image.max() - image.min()), 1e-9)).astype(np.uint8)
     image = np.repeat(image[..., None], 3, axis=2) if image.ndim == 2 else image[..., :3]
-    return cv2.resize(image, SIZE, interpolation=cv2.INTER_AREA)
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 @pytest.fixture(scope="module", params=["fast", "balanced", "accurate"])
@@ -67,6 +69,18 @@ def test_a_camera_turned_upside_down_is_not_a_mirror(registrar):
 def test_a_photo_of_another_picture_claims_nothing(registrar, projected, captured):
     reg = registrar.register(picture(projected), picture(captured))
     assert reg.claimed.mean() <= MOST, (projected, captured, reg.claimed.mean())
+
+
+@pytest.mark.parametrize(
+    "projected, captured, size",
+    [("shepp_logan_phantom", "logo", (512, 384)), ("logo", "coins", (512, 384)), ("colorwheel", "astronaut", SIZE)],
+)
+def test_a_chance_match_of_curves_is_not_confirmed(registrar, projected, captured, size):
+    """Pictures of curves and flat regions, photographed as another picture: a flexible warp carried a few of
+    their curves onto the other's and every local check passed (balanced claimed 19.7 %, 8.4 % and 10.8 %);
+    aligned again over the whole frame the claim moves away, and nothing is claimed."""
+    reg = registrar.register(picture(projected, size), picture(captured, size))
+    assert reg.claimed.mean() <= MOST, (projected, captured, reg.claimed.mean(), reg.reason)
 
 
 @pytest.fixture(scope="module")
