@@ -36,8 +36,11 @@ reads as the algorithm:
    verification, and stopped when the search moves on (:class:`~projreg.refine.search.Search`). A winner
    whose checks verify nothing is left as it is.
 9. **Verdict**: registered when the claim covers at least ``registered_above`` of the frame and
-   ``registered_windows`` of the checks' windows (:func:`~projreg.refine.evidence.registers`); otherwise
-   nothing is claimed and the answer is the homography of the network's flow, its smoothest statement.
+   ``registered_windows`` of the checks' windows (:func:`~projreg.refine.evidence.registers`), the capture
+   is not the projection mirrored (:mod:`~projreg.refine.handedness`), and a claim under ``confirm_below``
+   of the frame stays where the frame's alignment started from it leaves it
+   (:func:`~projreg.refine.candidates.stays`); otherwise nothing is claimed (and where nothing verified,
+   the answer is the homography of the network's flow, its smoothest statement).
 
 A pair longer than ``images.max_side`` runs stages 1-8 shrunk to it; with ``images.verify_full``
 (``balanced``: 512 px) the candidates are then resized to the pair's own grid and the winner verified
