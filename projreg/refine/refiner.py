@@ -449,7 +449,8 @@ def unconfirmed(claimed: np.ndarray, share: float, least: float, px: float) -> s
     return (
         f"unconfirmed: the {100 * claimed.mean():.1f}% of the frame that passes the checks moves when the whole frame "
         f"is aligned again from it ({100 * share:.0f}% of its textured pixels stay within {px:g} px): a chance match "
-        "of a few regions, as a photo of another picture gives"
+        "of a few regions, as a photo of another picture gives; if the picture is the right one, it has too little "
+        "structure to register alone: a structured-light pass (projsynth patterns) gives every pixel its own evidence"
     )
 
 
