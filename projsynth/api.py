@@ -100,7 +100,7 @@ def make_patterns(kind: str, size: tuple[int, int], **options: int | tuple[int, 
     unknown = sorted(set(options) - set(OPTIONS))
     if unknown:
         raise ProjsynthError(f"{unknown[0]}: not an option of a pattern set; the options are {', '.join(OPTIONS)}")
-    if not isinstance(size, tuple | list):
+    if not isinstance(size, tuple | list | np.ndarray):  # a string would pass tuple() below, character by character
         raise ProjsynthError(f"size: expected (height, width), got {size!r}")
     return make_set(kind, tuple(size), **options)
 
