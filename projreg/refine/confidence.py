@@ -136,12 +136,88 @@ def spanned(tensor: np.ndarray, weight: np.ndarray, sigma: float, cfg: Confidenc
         1.0
     """
 
-    def ratio(xx: np.ndarray, xy: np.ndarray, yy: np.ndarray) -> np.ndarray:
-        half, root = (xx + yy) / 2, np.sqrt(((xx - yy) / 2) ** 2 + xy**2)
-        return ramp((half - root) / np.maximum(half + root, 1e-12), cfg.span_fail, cfg.span_pass)
+    def marks(xx: np.ndarray, xy: np.ndarray, yy: np.ndarray) -> np.ndarray:
+        return ramp(_ratio(xx, xy, yy), cfg.span_fail, cfg.span_pass)
 
     w = np.asarray(weight, np.float32)
-    return averaged([w * tensor[..., k] for k in range(3)], sigma, cfg.shrunk_sigma, ratio)
+    return averaged([w * tensor[..., k] for k in range(3)], sigma, cfg.shrunk_sigma, marks)
+
+
+def eigen_ratio(products: list[np.ndarray], sigma: float, shrunk: float) -> np.ndarray:
+    """The smaller eigenvalue of the structure tensor over the larger, in [0, 1]: ``products`` (``gx^2``,
+    ``gx gy``, ``gy^2``, float ``(H, W)`` each) averaged by a Gaussian of ``sigma`` px (:func:`averaged`)."""
+    return averaged(products, sigma, shrunk, _ratio)
+
+
+def _ratio(xx: np.ndarray, xy: np.ndarray, yy: np.ndarray) -> np.ndarray:
+    half, root = (xx + yy) / 2, np.sqrt(((xx - yy) / 2) ** 2 + xy**2)
+    return (half - root) / np.maximum(half + root, 1e-12)
+
+
+def pinned(
+    ratio: np.ndarray,
+    weight: np.ndarray,
+    flow: np.ndarray,
+    radius: float,
+    cfg: ConfidenceConfig,
+    scale: float = 1.0,
+) -> np.ndarray:
+    """Where the passing texture near a pixel fixes its position on a bent surface, in [0, 1]: the share of
+    the passing texture ``weight`` (texture times pass mark, float ``(H, W)``) whose own check window fixes a
+    position in both directions (``ratio``: the :func:`eigen_ratio` of the projected image over one window,
+    ramped from ``cfg.pin_fail`` to ``cfg.pin_pass``: a corner, a blob, a letter; not a curve), averaged
+    within the ``flow``'s reach (:func:`reach`), ramped from 0 to ``cfg.pin_share``; 1 where the reach is
+    ``cfg.span_radii`` radii or more (a flow that bends that little is :func:`spanned`'s to judge, over
+    that reach).
+
+    A curve alone fixes the position along itself only through the surface model's coupling to texture
+    elsewhere, which holds while the surface between is near affine. Where the answer bends, that coupling
+    reaches no farther than the flow stays near its chord, and a curve's pixels slide along it without
+    failing any check (:func:`spanned` reads the tensor summed over the whole reach, where a curve's
+    directions span both). ``scale``: the user's pixels per pixel of the grid (the bend tolerance is
+    ``cfg.pin_bend_px`` of the user's). Every map here is smooth at a radius: it is computed on the grid
+    shrunk ``radius // cfg.shrunk_sigma`` times and brought back bilinearly."""
+    h, w = weight.shape
+    f = max(1, int(radius // cfg.shrunk_sigma))
+    small = (max(1, w // f), max(1, h // f))
+    texture = cv2.resize(np.asarray(weight, np.float32), small, interpolation=cv2.INTER_AREA)
+    corner = cv2.resize(
+        np.asarray(weight * ramp(ratio, cfg.pin_fail, cfg.pin_pass), np.float32), small, interpolation=cv2.INTER_AREA
+    )
+    near = reach(flow, texture, radius, cfg, scale, f) / radius  # in radii
+    at = np.log2(np.clip(near, 1.0, cfg.span_radii))
+    levels = [r for r in (1.0, 2.0, 4.0) if r < cfg.span_radii] + [cfg.span_radii]  # radii, each twice the last
+    shares = [gaussian(corner, r * radius / f) / np.maximum(gaussian(texture, r * radius / f), 1e-6) for r in levels]
+    marks, out = np.log2(levels), shares[0]
+    for k in range(1, len(levels)):  # the share at the reach, between the levels on a log scale
+        t = np.clip((at - marks[k - 1]) / (marks[k] - marks[k - 1]), 0.0, 1.0)
+        out = np.where(at > marks[k - 1], (1 - t) * shares[k - 1] + t * shares[k], out)
+    out = np.where(near >= cfg.span_radii, 1.0, ramp(out, 0.0, cfg.pin_share)).astype(np.float32)
+    return out if f == 1 else cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def reach(
+    flow: np.ndarray, weight: np.ndarray, radius: float, cfg: ConfidenceConfig, scale: float = 1.0, f: int = 1
+) -> np.ndarray:
+    """The distance (px of the flow's grid) over which ``flow`` stays within ``cfg.pin_bend_px`` (the user's
+    pixels, ``scale`` of them per pixel of that grid) of a straight interpolation, ``sqrt(2 tolerance /
+    bending)``: the bending is the Frobenius norm of the flow's second derivatives (at sigma ``radius``)
+    averaged over ``weight`` around each pixel (a Gaussian of ``cfg.span_radii`` radii): the bending where the
+    flow is seen, not where it interpolates. ``weight`` and the result are on the flow's grid shrunk ``f``
+    times (area averages)."""
+    small = weight.shape[::-1]
+    pad = int(np.ceil(4 * radius / f))  # an odd reflection about the edge continues a plane: no bend there
+    bend = np.zeros(weight.shape, np.float32)
+    for k in range(2):
+        a = cv2.resize(np.ascontiguousarray(flow[..., k], np.float32), small, interpolation=cv2.INTER_AREA)
+        a = np.pad(a, pad, mode="reflect", reflect_type="odd")
+        gy, gx = np.gradient(cv2.GaussianBlur(a, (0, 0), radius / f)[pad:-pad, pad:-pad])
+        gxy, gxx = np.gradient(gx)
+        bend += gxx**2 + 2 * gxy**2 + np.gradient(gy)[0] ** 2
+    bend = np.sqrt(bend) / (f * f)  # px per px^2 on the flow's grid
+    sigma = cfg.span_radii * radius / f
+    seen = gaussian(weight * bend, sigma) / np.maximum(gaussian(weight, sigma), 1e-6)
+    return np.sqrt(2 * cfg.pin_bend_px / scale / np.maximum(seen, 1e-9))
 
 
 def averaged(maps: list[np.ndarray], sigma: float, shrunk: float, combine) -> np.ndarray:

@@ -166,6 +166,13 @@ class ConfidenceConfig:
     mirror_scored: int = 10  # matches (same ratio), mirrored when their homography scores above the answer
     confirm_below: float = 0.5  # a registered claim under this share of the frame is aligned again from itself ...
     confirm_share: float = 0.5  # ... and stands when this share of its claimed textured pixels stays (align.trust_px)
+    pin: bool = True  # a claimed pixel needs structure that fixes a position in two directions within one
+    # check window (a corner, a blob, not a curve alone) nearby: near as the answer's bending asks ...
+    pin_fail: float = 0.1  # ... a window's structure tensor, eigenvalue ratio at or below which it fixes none ...
+    pin_pass: float = 0.2  # ... and at or above which it fixes a position alone (selection.ncc_sigma windows)
+    pin_share: float = 0.02  # ... such windows' share of the passing texture within the reach, from which it holds
+    pin_bend_px: float = 1.0  # the reach: the distance over which the answer leaves its chord by this (px), one
+    # radius to span_radii radii
 
 
 @dataclass(frozen=True)
@@ -254,6 +261,11 @@ class RefineConfig:
             raise ProjregError(
                 "refine confidence.mirror_inliers and mirror_scored must be >= 4 (a homography's points) and "
                 f"mirror_ratio >= 1, got {co.mirror_inliers}, {co.mirror_scored}, {co.mirror_ratio}"
+            )
+        if not (0 <= co.pin_fail < co.pin_pass <= 1 and 0 < co.pin_share <= 1 and co.pin_bend_px > 0):
+            raise ProjregError(
+                "refine confidence.pin_fail < pin_pass must lie in 0..1, pin_share in (0, 1] and pin_bend_px > 0, got "
+                f"{co.pin_fail}, {co.pin_pass}, {co.pin_share}, {co.pin_bend_px}"
             )
         if not (0 <= co.confirm_below <= 1 and 0 <= co.confirm_share <= 1):
             raise ProjregError(

@@ -66,7 +66,9 @@ class Projected:
     weight, by view, filled as asked, and ``near`` the fine spline's data ramp of each
     (:meth:`PairContext.near_data`); ``repeats``: where the image repeats itself (None until the
     refinement has measured it); ``features``: its SIFT features for the handedness check (None until
-    measured, :mod:`~projreg.refine.handedness`).
+    measured, :mod:`~projreg.refine.handedness`); ``corners``: how well each check window of it fixes a
+    position alone (the eigenvalue ratio of ``tensor`` over one window; None until asked,
+    :func:`~projreg.refine.verify.pinned`).
     """
 
     image: np.ndarray
@@ -84,6 +86,7 @@ class Projected:
     near: dict[str, np.ndarray] = field(default_factory=dict)
     repeats: np.ndarray | None = None
     features: Features | None = None
+    corners: np.ndarray | None = None
 
     @classmethod
     def build(cls, projected: np.ndarray, config: RefineConfig) -> Projected:

@@ -13,7 +13,8 @@ import numpy as np
 from ..geometry.homography import fit_homography, homography_flow
 from ..prediction import CONFIDENT
 from .candidates import Candidate
-from .confidence import gap_confidence, pixel_confidence
+from .confidence import eigen_ratio, gap_confidence, pass_marks, pixel_confidence
+from .confidence import pinned as pinned_by
 from .context import DisFlows, PairContext, flow_distance
 from .selection import ambiguity, rivals
 from .workers import Workers
@@ -33,6 +34,20 @@ def confidence(
     maps, radius = checks(ctx, cands, scores, best, dis), cfg.radius * max(ctx.shape)
     conf = pixel_confidence(ctx.evidence, *maps, radius, cfg, ctx.side.tensor)
     return conf if repeats is None else np.where(repeats, 0.0, conf).astype(np.float32)
+
+
+def pinned(
+    ctx: PairContext, cands: list[Candidate], scores: dict[str, float], best: Candidate, dis: DisFlows
+) -> np.ndarray:
+    """Where candidate ``best``'s passing texture pins its position on a bent surface, in [0, 1]
+    (:func:`~projreg.refine.confidence.pinned`, at the checks' window ``selection.ncc_sigma``): the
+    confidence's factor for the answer's claim."""
+    cfg, side = ctx.config.confidence, ctx.side
+    if side.corners is None:
+        products = [side.tensor[..., k] for k in range(3)]
+        side.corners = eigen_ratio(products, ctx.config.selection.ncc_sigma, ctx.config.images.shrunk_sigma)
+    passed = pass_marks(*checks(ctx, cands, scores, best, dis), cfg)
+    return pinned_by(side.corners, ctx.evidence * passed, best.flow, cfg.radius * max(ctx.shape), cfg, ctx.scale)
 
 
 def checks(

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 
 from projreg.prediction import CONFIDENT
-from projreg.refine.confidence import neighbourhood, pixel_confidence
+from projreg.refine.confidence import eigen_ratio, neighbourhood, pinned, pixel_confidence
 from projreg.refine.config import ConfidenceConfig
 
 
@@ -62,3 +62,33 @@ def test_a_wide_neighbourhood_on_the_shrunk_grid_matches_the_full_size_one():
         shrunk = neighbourhood(texture, passed, sigma, 0.1)
         assert shrunk.shape == (h, w) and np.abs(shrunk - full_size(sigma)).max() < 0.025, sigma
     np.testing.assert_allclose(neighbourhood(texture, passed, 11.0, 0.1), full_size(11.0), atol=1e-5)  # not shrunk
+
+
+def _pin(image: np.ndarray, flow: np.ndarray, radius: float = 12.0) -> np.ndarray:
+    """:func:`pinned` of a gray ``image`` whose every textured pixel passed the checks, under ``flow``."""
+    gray = image.astype(np.float32)
+    gx, gy = cv2.Scharr(gray, cv2.CV_32F, 1, 0), cv2.Scharr(gray, cv2.CV_32F, 0, 1)
+    ratio = eigen_ratio([gx * gx, gx * gy, gy * gy], 7.0, 3.5)
+    texture = np.minimum(cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), 3) / 1e5, 1.0)
+    return pinned(ratio, texture, flow, radius, ConfidenceConfig())
+
+
+def test_a_curve_alone_pins_nothing_where_the_surface_bends_and_a_corner_does():
+    """Circles fix no position along themselves within a check window; on a plane the span test speaks
+    for them, but where the flow bends their pixels slide along them, and only windows that fix a
+    position alone (the crossings of a grid) pin the answer."""
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    circles = np.zeros((h, w), np.uint8)
+    for r in (40, 70, 100):
+        cv2.circle(circles, (160, 120), r, 255, 2, cv2.LINE_AA)
+    grid = np.zeros((h, w), np.uint8)
+    grid[::24, :] = 255
+    grid[:, ::24] = 255
+    grid = cv2.GaussianBlur(grid, (0, 0), 1.0)
+    bumps = np.dstack([4 * np.sin(xx / 25) * np.sin(yy / 25), 4 * np.cos(xx / 25) * np.sin(yy / 30)])
+    plane = np.dstack([0.05 * xx + 3, -0.02 * yy + 1])
+    on = cv2.dilate(circles, np.ones((3, 3), np.uint8)) > 0
+    assert _pin(circles, bumps)[on].mean() < 0.1
+    assert _pin(circles, plane)[on].min() == 1.0
+    assert _pin(grid, bumps)[grid > 64].min() == 1.0
