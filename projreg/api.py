@@ -26,6 +26,7 @@ import numpy as np
 from projsynth.errors import ProjsynthError
 from projsynth.structured.response import Response, read_response
 
+from .checks import check_flag, check_path, is_int
 from .errors import ProjregError
 from .evaluation.metrics import EPEAccumulator
 from .geometry.frames import resize_to
@@ -73,7 +74,7 @@ class Registrar:
         refine: bool = True,
         max_side: int = 1024,
     ) -> None:
-        if not _is_int(max_side) or max_side < 16:
+        if not is_int(max_side) or max_side < 16:
             raise ProjregError(f"max_side: expected an integer >= 16, got {max_side!r}")
         if model is not None and not isinstance(model, str | os.PathLike):
             raise ProjregError(f"model: expected None, 'reference' or a path, got {type(model).__name__}")
@@ -83,7 +84,7 @@ class Registrar:
             device=device,
             precision=precision,
             backend=backend,
-            refine=refine,
+            refine=check_flag("refine", refine),
             max_side=max_side,
         )
         self.quality = self.pipeline.quality
@@ -118,7 +119,7 @@ class Registrar:
         """The registrations of several pairs, in order; the network runs on ``batch_size`` pairs of one
         size per call. ``white``, ``black``: as :meth:`register`, one pair of photos for every pair (a
         fixed rig)."""
-        if not _is_int(batch_size) or batch_size < 1:
+        if not is_int(batch_size) or batch_size < 1:
             raise ProjregError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         pairs = _checked_pairs(pairs)
         photos = rig_photos(white, black, _response(response))
@@ -174,20 +175,19 @@ class Registrar:
         if self.pipeline.refiner is None:
             raise ProjregError("the live loop tracks each frame with the refinement; use refine=True")
         check_coverage(coverage, min_confidence)
-        if not (isinstance(fill, int | np.integer) and 0 <= fill <= 255):
+        if not (is_int(fill) and 0 <= fill <= 255):
             raise ProjregError(f"fill: must be an integer in 0..255, got {fill!r}")
-        if limit is not None and (not _is_int(limit) or limit < 1):
+        if limit is not None and (not is_int(limit) or limit < 1):
             raise ProjregError(f"limit: expected None or an integer >= 1, got {limit!r}")
-        if isinstance(content, np.ndarray):
-            content = Content(check_image("content", content), "content")
-        elif isinstance(content, str | os.PathLike):
-            content = Content(Path(content), "content")
+        motion = check_flag("predict_motion", predict_motion)
+        if isinstance(content, np.ndarray | str | os.PathLike):
+            content = Content(content, "content")
         elif not isinstance(content, Content):
             raise ProjregError(f"content: expected an image array or a path, got {type(content).__name__}")
-        if _is_int(captured):
+        if is_int(captured):
             camera = DeviceCamera(int(captured), "captured")
         elif isinstance(captured, str | os.PathLike):
-            camera = PlayedVideo(Path(captured), "captured")
+            camera = PlayedVideo(check_path("captured", captured), "captured")
         elif isinstance(captured, PlayedVideo | DeviceCamera):
             camera = captured
         else:
@@ -195,7 +195,7 @@ class Registrar:
                 f"captured: expected a camera index, a video path or a camera, got {type(captured).__name__}"
             )
         options = {"coverage": coverage, "min_confidence": min_confidence, "fill": fill}
-        return Live(self.pipeline, camera, content, predict_motion=predict_motion, limit=limit, **options)
+        return Live(self.pipeline, camera, content, predict_motion=motion, limit=limit, **options)
 
 
 def _response(response: Response | str | Path | None) -> Response | None:
@@ -206,10 +206,6 @@ def _response(response: Response | str | Path | None) -> Response | None:
         return read_response(Path(response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
 
 
 def _checked_pairs(pairs: object) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -242,7 +238,7 @@ def compensate(
     path of a ``projsynth response`` file), else ``gamma`` for both (2.2 by default). Returns uint8 RGB
     on the projected grid."""
     _check_registration(registration)
-    if not (isinstance(fill, int | np.integer) and 0 <= fill <= 255):
+    if not (is_int(fill) and 0 <= fill <= 255):
         raise ProjregError(f"fill: must be an integer in 0..255, got {fill!r}")
     image = check_image("content", content)
     camera = registration.camera_size
@@ -292,17 +288,18 @@ def export_warp(
     ``format``, ``size``, ``shown`` and, for a mesh, its interpolation error ``error_mean`` and
     ``error_max`` in camera pixels (:func:`projreg.inference.warpfiles.write_warp`), with ``registered``
     and ``as_it_is`` (the pair was not registered: the map is the identity)."""
+    out = check_path("out", out)
     if isinstance(source, str | os.PathLike):
         return export_warp_file(
             Path(source),
-            Path(out),
+            out,
             step=step,
             content_size=content_size,
             coverage=coverage,
             min_confidence=min_confidence,
         )
     m = warp_map(source, coverage=coverage, min_confidence=min_confidence)
-    result = write_warp(m, Path(out), step=step, content_size=content_size)
+    result = write_warp(m, out, step=step, content_size=content_size)
     return result | {"registered": source.registered, "as_it_is": as_it_is(source.registered, coverage)}
 
 

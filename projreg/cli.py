@@ -11,7 +11,7 @@ from typing import Annotated, NoReturn
 
 import typer
 
-from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, is_rank0, output_path
+from projsynth.utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, input_path, is_rank0, output_path
 from projsynth.utils.cores import available_cores
 
 from .cli_compensate import compensate
@@ -410,13 +410,15 @@ def bench(
 @app.command(cls=Command)
 def predict(
     projected: Annotated[
-        Path, typer.Option(help="Projected image, or a folder or video of them.", metavar="IMG|DIR|VIDEO")
+        Path,
+        typer.Option(help="Projected image, or a folder or video of them.", parser=input_path, metavar="IMG|DIR|VIDEO"),
     ],
     captured: Annotated[
         Path,
         typer.Option(
             help="Captured image, or a folder (same relative names as a --projected folder) or a video (frames "
             "paired in order with a --projected video or folder, or all with one --projected image).",
+            parser=input_path,
             metavar="IMG|DIR|VIDEO",
         ),
     ],

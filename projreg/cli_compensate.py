@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from projsynth.utils.console import fail, output_path
+from projsynth.utils.console import fail, input_path, output_path
 
 from .cli_options import Coverage, MinConfidence, ResponseFile
 from .errors import ProjregError
@@ -17,13 +17,18 @@ from .errors import ProjregError
 def compensate(
     content: Annotated[
         Path,
-        typer.Option(help="Desired camera view: an image, or a video (or folder) of frames.", metavar="IMG|VIDEO|DIR"),
+        typer.Option(
+            help="Desired camera view: an image, or a video (or folder) of frames.",
+            parser=input_path,
+            metavar="IMG|VIDEO|DIR",
+        ),
     ],
     flow: Annotated[
         Path,
         typer.Option(
             help="Flow EXR projected -> captured (from `projreg predict`), or a folder of them, one per frame "
             "in name order (`predict --track`).",
+            parser=input_path,
             metavar="FILE.exr|DIR",
         ),
     ],
@@ -79,8 +84,6 @@ def compensate(
             raise ProjregError(f"{given[0]} sets the photometric correction; add --photometric")
         if response is not None and gamma is not None:
             raise ProjregError("--gamma is the assumption --response replaces by a measurement; drop --gamma")
-        if fps is not None and not fps > 0:
-            raise ProjregError(f"--fps must be > 0, got {fps}")
         photos = (white, black) if photometric else None
         gamma = 2.2 if gamma is None else gamma
         result = compensate_files(content, flow, out, fill, photos, gamma, coverage, min_confidence, response, fps)

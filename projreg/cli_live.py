@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from projsynth.utils.console import Bar, Quiet, fail, output_path
+from projsynth.utils.console import Bar, Quiet, fail, input_path, output_path
 
 from .cli_options import Backend, Coverage, Device, Fast, MinConfidence, Precision, Quality, resolve_quality
 from .errors import ProjregError
@@ -29,6 +29,7 @@ def live(
         Path,
         typer.Option(
             help="What the projector is given to show: an image, or a video (played at its rate, looping).",
+            parser=input_path,
             metavar="IMG|VIDEO",
         ),
     ],
@@ -80,7 +81,7 @@ def live(
     line: frames in, registered, dropped, registered frames per second, latency (arrival to warp)."""
     from .api import Registrar
     from .inference.live import record_live
-    from .inference.outputs import guard_outputs, require_suffix
+    from .inference.outputs import check_parent, guard_outputs, require_suffix
     from .inference.realtime import Content, DeviceCamera, PlayedVideo
     from .inference.video import check_video_suffix
 
@@ -89,9 +90,14 @@ def live(
             raise ProjregError(f"--frames must be >= 1, got {frames}")
         if stats is not None:
             require_suffix(stats, ".json", "--stats")
+        if not captured.strip():
+            raise ProjregError("--captured: empty; give a camera index (0, 1, ...) or a video")
         index = int(captured) if captured.strip().isdigit() else None  # a camera, else a video played as one
         inputs = [("--content", content)] + ([("--captured", Path(captured))] if index is None else [])
         guard_outputs([("--out", out), ("--stats", stats)], inputs)
+        for option, path in (("--out", out), ("--stats", stats)):
+            if path is not None:
+                check_parent(path, option)  # before the loop, not when its frames are written
         if out is not None:
             check_video_suffix(out, "--out")
         played = None if index is not None else PlayedVideo(Path(captured), "--captured")

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from projsynth.utils.console import fail, output_path
+from projsynth.utils.console import fail, input_path, output_path
 
 from .cli_options import Coverage, MinConfidence
 from .errors import ProjregError
@@ -27,7 +27,10 @@ def _parse_content_size(text: str | None) -> tuple[int, int] | None:
 
 def warp(
     flow: Annotated[
-        Path, typer.Option(help="Flow EXR projected -> captured (from `projreg predict`).", metavar="FILE.exr")
+        Path,
+        typer.Option(
+            help="Flow EXR projected -> captured (from `projreg predict`).", parser=input_path, metavar="FILE.exr"
+        ),
     ],
     out: Annotated[
         Path,

@@ -29,12 +29,13 @@ from projsynth.flow.formats import FlowFile, read_flow_file
 from projsynth.structured.response import read_response
 from projsynth.utils.images import load_image
 
+from ..checks import check_number
 from ..errors import ProjregError
 from ..geometry.warp import lands_inside, pixel_maps
 from .outputs import guard_outputs, require_suffix, write_png
 from .radiometric import CLIPPED_SHARE, Radiometry, calibrate, solve
 from .sources import Frames, survey
-from .video import VideoWriter
+from .video import VideoWriter, check_fps
 
 COVERAGES = ("complete", "claimed")  # which projector pixels show content (module docstring)
 PREDICTED = "valid_threshold"  # the header attribute of `projreg predict`'s EXR (its flow is finite everywhere)
@@ -114,11 +115,11 @@ def shown_pixels(
 
 
 def check_coverage(coverage: str, min_confidence: float) -> None:
-    """Refuse a coverage that is not one of ``COVERAGES`` or a confidence threshold outside [0, 1]."""
+    """Refuse a coverage that is not one of ``COVERAGES`` or a confidence threshold that is not a number
+    in [0, 1] (a bool, a string, None)."""
     if coverage not in COVERAGES:
         raise ProjregError(f"--coverage must be one of {', '.join(COVERAGES)}, got {coverage!r}")
-    if not 0 <= min_confidence <= 1:
-        raise ProjregError(f"--min-confidence must be in 0..1, got {min_confidence}")
+    check_number("--min-confidence", min_confidence, 0.0, 1.0)
 
 
 def prewarp(
@@ -240,10 +241,17 @@ def compensate_files(
 
     Raises:
         ProjregError: one line naming the option: a content's and the flows' frame counts that differ, a
-            frame or flow that does not read, an output suffix that is not the output's format.
+            frame or flow that does not read, an output suffix that is not the output's format, an ``fps``
+            out of (0, ``MAX_FPS``] or given for a picture (refused, not ignored).
     """
+    fps = None if fps is None else check_fps(fps, "--fps")
     contents, flows = Frames(Path(content), "--content"), _flow_files(Path(flow))
     video = contents.sequence or Path(flow).is_dir()
+    if fps is not None and not video:
+        raise ProjregError(
+            "--fps sets the frame rate of a video; a still --content and one --flow EXR give one picture (PNG): "
+            "drop --fps"
+        )
     if video:
         writer = VideoWriter(Path(out), fps or contents.fps or DEFAULT_FPS)  # its suffix checked now
     else:

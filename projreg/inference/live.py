@@ -83,7 +83,8 @@ def extrapolate(flow: np.ndarray, previous: np.ndarray, frames_between: int, hor
 class Live:
     """The live loop (module docstring) over ``camera``'s frames: iterate to run it, one
     :class:`LiveFrame` per registered frame, until the camera ends, ``limit`` frames are registered, or
-    the caller stops (a ``break``, Ctrl-C); :meth:`summary` then says how it went.
+    the caller stops (a ``break``, Ctrl-C); :meth:`summary` then says how it went. It runs once (its
+    camera is released at the end): iterating it again is an error; another run is another ``Live``.
 
     Args:
         pipeline: the registration (:class:`~projreg.inference.pipeline.Pipeline`, with its refinement).
@@ -114,8 +115,12 @@ class Live:
         self.log: list[dict] = []  # per registered frame, its numbers (:meth:`records`), not its images
         self.started = self.stopped = 0.0
         self.arrived = 0
+        self.ran = False
 
     def __iter__(self) -> Iterator[LiveFrame]:
+        if self.ran:
+            raise ProjregError("the live loop runs once (its camera was released); call Registrar.live again")
+        self.ran = True
         taken: list[Shot] = []  # the shot being registered, alone (a frame is never kept longer)
 
         def pairs() -> Iterator[tuple[np.ndarray, np.ndarray]]:

@@ -22,6 +22,16 @@ def require_suffix(path: Path, suffix: str, option: str) -> None:
         )
 
 
+def check_parent(path: Path, option: str) -> None:
+    """Refuse an output whose folder cannot be: a regular file where a folder of its path would go
+    (``afile/o.mkv``), found before any work, rather than when the file is written."""
+    folder = Path(path).parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if folder.exists() and not folder.is_dir():
+        raise ProjregError(f"{option} {path}: cannot write ({folder} is a file, not a folder); check the directory")
+
+
 def guard_outputs(outputs: list, inputs: list) -> None:
     """:func:`projsynth.utils.outputs.refuse_overwriting_inputs` as a :class:`ProjregError`."""
     try:

@@ -206,6 +206,10 @@ def predict(
     if track and batch_size > 1:
         raise ProjregError("--track registers frame after frame; drop --batch-size")
     sides = Frames(projected, "--projected"), Frames(captured, "--captured")
+    if batch_size > 1 and not (sides[0].sequence or sides[1].sequence):
+        raise ProjregError(
+            "--batch-size batches the pairs of folders or videos; two image files are one pair: drop --batch-size"
+        )
     if track and not sides[1].sequence:
         raise ProjregError(
             f"--track: --captured {captured} is one image; give the frames of one sequence: two folders or videos, "

@@ -30,12 +30,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..checks import check_path
 from ..errors import ProjregError
+from .register import check_image
 from .sources import load
-from .video import VideoFile, is_video
+from .video import MAX_FPS, VideoFile, check_fps, is_video, quiet_opencv
 
 Clock = Callable[[], float]
 DEFAULT_FPS = 30.0  # a camera or content video that states no frame rate is taken to run at this (the simulator's)
+CAMERA_INDEXES = 10000  # OpenCV camera indexes: a device's number, plus a backend's offset (CAP_V4L2 200, ...)
 DECODED_AHEAD = 2  # frames a played video's decoder may hold for the loop: bounded, as a camera driver's buffer
 
 
@@ -60,7 +63,8 @@ class PlayedVideo:
 
     Args:
         path: the video; ``option`` names it in errors.
-        fps: its rate in frames per second (None: the rate its container states, else ``DEFAULT_FPS``).
+        fps: its rate in frames per second, in (0, ``MAX_FPS``] (None: the rate its container states, else
+            ``DEFAULT_FPS``).
         clock, sleep: the clock the frames arrive by and how to wait on it (a fake pair makes a test
             deterministic).
     """
@@ -73,8 +77,9 @@ class PlayedVideo:
         clock: Clock = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
-        self.video = VideoFile(Path(path), option)
-        self.fps = float(fps or self.video.fps or DEFAULT_FPS)
+        given = None if fps is None else check_fps(fps)
+        self.video = VideoFile(check_path(option, path), option)
+        self.fps = given or _stated_fps(self.video.fps)
         self.clock, self.sleep = clock, sleep
         self.start_time: float | None = None
         self._decoded: queue.Queue | None = None  # frames, then None at the end (or the decoder's error)
@@ -155,22 +160,28 @@ class DeviceCamera:
     camera stops giving frames.
 
     Args:
-        source: an OpenCV camera index (``cv2.VideoCapture(index)``), or an object with ``read()`` and
-            ``release()`` (a ``cv2.VideoCapture`` of a stream); ``option`` names it in errors.
+        source: an OpenCV camera index in 0..``CAMERA_INDEXES - 1`` (``cv2.VideoCapture(index)``, its
+            own console messages off while it probes), or an object with ``read()`` and ``release()`` (a
+            ``cv2.VideoCapture`` of a stream); ``option`` names it in errors.
         clock: the clock arrival times are read on.
     """
 
     def __init__(self, source: int | cv2.VideoCapture, option: str = "--captured", clock: Clock = time.monotonic):
         self.option, self.clock = option, clock
         if isinstance(source, int):
-            capture = cv2.VideoCapture(source)
+            if not 0 <= source < CAMERA_INDEXES:  # OpenCV crashes on -1 and overflows on 10**11
+                raise ProjregError(f"{option} {source}: a camera index is in 0..{CAMERA_INDEXES - 1}; check the index")
+            previous = quiet_opencv()
+            try:
+                capture = cv2.VideoCapture(source)
+            finally:
+                cv2.utils.logging.setLogLevel(previous)
             if not capture.isOpened():
                 raise ProjregError(f"{option} {source}: OpenCV cannot open camera {source}; check the index")
         else:
             capture = source
         self._capture = capture
-        stated = capture.get(cv2.CAP_PROP_FPS) if hasattr(capture, "get") else 0.0
-        self.fps = float(stated) if stated and stated > 0 else DEFAULT_FPS
+        self.fps = _stated_fps(capture.get(cv2.CAP_PROP_FPS) if hasattr(capture, "get") else None)
         self.start_time: float | None = None
         self._newest: Shot | None = None
         self._count = 0  # frames arrived
@@ -219,21 +230,31 @@ class DeviceCamera:
         self._capture.release()
 
 
+def _stated_fps(stated: float | None) -> float:
+    """The rate a video or camera states, if it is one (in (0, ``MAX_FPS``]), else ``DEFAULT_FPS``."""
+    return float(stated) if stated is not None and 0 < stated <= MAX_FPS else DEFAULT_FPS
+
+
 class Content:
-    """What the projector is given to show: one image, or a video that plays at its rate (``fps`` None:
-    its stated rate) from :meth:`start`, looping; :meth:`at` gives the frame on show at a clock time
-    and its number (an image: 0)."""
+    """What the projector is given to show: one image (uint8 RGB ``(H, W, 3)`` or a file), or a video
+    that plays at its rate (``fps`` in (0, ``MAX_FPS``]; None: its stated rate, else ``DEFAULT_FPS``)
+    from :meth:`start`, looping; :meth:`at` gives the frame on show at a clock time and its number (an
+    image: 0). A frame the video's container states but that does not read is an error when the show
+    reaches it, as :class:`~projreg.inference.video.VideoFile`'s."""
 
     def __init__(self, source: np.ndarray | Path, option: str = "--content", fps: float | None = None) -> None:
         self.option = option
         self.video: VideoFile | None = None
+        given = None if fps is None else check_fps(fps)
         if isinstance(source, np.ndarray):
-            self.image = source
-        elif is_video(Path(source)):
+            self.image = check_image(option, source)
+        elif is_video(check_path(option, source)):
             self.video = VideoFile(Path(source), option)
-            self.fps = float(fps or self.video.fps or DEFAULT_FPS)
+            self.fps = given or _stated_fps(self.video.fps)
         else:
             self.image = load(Path(source))
+        if self.video is None and given is not None:
+            raise ProjregError(f"fps: {option} is a still image, shown without a frame rate; drop fps")
         self.start_time = 0.0
         self._capture: cv2.VideoCapture | None = None
         self._index, self._frame, self._length = -1, None, None
@@ -254,8 +275,7 @@ class Content:
         while self._index < target:
             ok, bgr = self._capture.read()
             if not ok:
-                if self._index < 0:
-                    raise ProjregError(f"{self.option} {self.video.path}: no frame can be read")
+                self.video.check_end(self._index + 1)  # a damaged or truncated file is not the video's end
                 self._length = self._index + 1
                 return self.at(now)
             self._index, self._frame = self._index + 1, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)

@@ -10,6 +10,7 @@ here and read back gives the very frames, bit for bit (``.avi``, HuffYUV, too).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 from collections.abc import Iterator
@@ -19,12 +20,16 @@ from types import TracebackType
 import cv2
 import numpy as np
 
+from ..checks import check_number
 from ..errors import ProjregError
+from .outputs import check_parent
+from .register import check_image
 
 VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".m4v", ".webm", ".mpg", ".mpeg", ".ts", ".wmv", ".flv")
 # FFV1 in Matroska: lossless and compact; HuffYUV in AVI: lossless, large, 3-8x faster to encode and decode
 # (the live loop's --out, a camera recording); MPEG-4 part 2 in MP4: lossy, for players without either
 VIDEO_CODECS = {".mkv": "FFV1", ".avi": "HFYU", ".mp4": "mp4v"}
+MAX_FPS = 1000.0  # frames per second: a high-speed camera's; beyond, FFmpeg's time base fails or an encoder hangs (inf)
 FFMPEG_QUIET = "-8"  # AV_LOG_QUIET: the decoder's complaints about a damaged file become our one line
 
 
@@ -40,7 +45,12 @@ def check_video_suffix(path: Path, option: str) -> None:
         raise ProjregError(f"{option} {path}: a video is written as {names}; give one of these suffixes")
 
 
-def _quiet() -> int:
+def check_fps(fps: object, name: str = "fps") -> float:
+    """``fps`` as a float if it is a frame rate in (0, ``MAX_FPS``], else one line naming ``name``."""
+    return check_number(name, fps, 0.0, MAX_FPS, low_open=True)
+
+
+def quiet_opencv() -> int:
     """OpenCV's and FFmpeg's console messages off (an explicit ``OPENCV_FFMPEG_LOGLEVEL`` is kept); the
     previous OpenCV log level, to restore."""
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", FFMPEG_QUIET)
@@ -71,7 +81,7 @@ class VideoFile:
 
     def open(self) -> cv2.VideoCapture:
         """A fresh ``cv2.VideoCapture`` of the file, at its first frame (the caller releases it)."""
-        previous = _quiet()
+        previous = quiet_opencv()
         try:
             capture = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         finally:
@@ -94,6 +104,11 @@ class VideoFile:
                 yield cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
         finally:
             capture.release()
+        self.check_end(k)
+
+    def check_end(self, k: int) -> None:
+        """Refuse a video whose frame ``k`` did not read where its container states more frames (or none
+        read at all): a damaged or truncated file, not the video's end."""
         if k == 0 or (self.stated is not None and k < self.stated):
             said = f" of the {self.stated} its container states" if self.stated else ""
             raise ProjregError(
@@ -105,18 +120,18 @@ class VideoWriter:
     """A video written whole or not at all: frames go to a temporary file beside ``path`` (its suffix
     kept, for FFmpeg's container), renamed to ``path`` by :meth:`close`; leaving the ``with`` block by an
     exception (Ctrl-C included), or :meth:`discard`, removes it. A stopped run that should keep what was
-    written calls :meth:`close`. The codec follows the suffix (``VIDEO_CODECS``); every frame must
-    have the first one's size.
+    written calls :meth:`close`. The codec follows the suffix (``VIDEO_CODECS``); every frame is uint8
+    RGB ``(H, W, 3)`` of the first one's size; ``fps`` a frame rate in (0, ``MAX_FPS``].
 
     Raises:
-        ProjregError: naming ``option``: a suffix with no codec here, or a file FFmpeg cannot write.
+        ProjregError: naming ``option``: a suffix with no codec here, a folder of the path that is a
+            file, or a file FFmpeg cannot write; ``fps`` out of range; a frame that is not uint8 RGB.
     """
 
     def __init__(self, path: Path, fps: float, option: str = "--out") -> None:
-        self.path, self.fps, self.option = Path(path), float(fps), option
+        self.path, self.fps, self.option = Path(path), check_fps(fps), option
         check_video_suffix(self.path, option)
-        if not self.fps > 0:
-            raise ProjregError(f"{option} {self.path}: a video needs a frame rate > 0, got {fps}")
+        check_parent(self.path, option)
         self.tmp = self.path.with_name(f".{self.path.stem}.{secrets.token_hex(6)}.tmp{self.path.suffix}")
         self.codec = VIDEO_CODECS[self.path.suffix.lower()]
         self.writer: cv2.VideoWriter | None = None
@@ -125,13 +140,14 @@ class VideoWriter:
 
     def write(self, rgb: np.ndarray) -> None:
         """Append one uint8 RGB frame ``(H, W, 3)``."""
+        check_image(f"{self.option} {self.path}: frame {self.frames}", rgb)
         if self.writer is None:
             self.size = rgb.shape[:2]
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as e:
                 raise ProjregError(f"{self.option} {self.path}: cannot write ({e.strerror or e})") from e
-            previous = _quiet()
+            previous = quiet_opencv()
             try:
                 fourcc = cv2.VideoWriter_fourcc(*self.codec)
                 self.writer = cv2.VideoWriter(str(self.tmp), cv2.CAP_FFMPEG, fourcc, self.fps, self.size[::-1])
@@ -167,7 +183,8 @@ class VideoWriter:
         if self.writer is not None:
             self.writer.release()
             self.writer = None
-        self.tmp.unlink(missing_ok=True)
+        with contextlib.suppress(FileNotFoundError, NotADirectoryError):  # never written: nothing to remove
+            self.tmp.unlink()
 
     def __enter__(self) -> VideoWriter:
         return self

@@ -27,11 +27,10 @@ from projsynth.utils.files import write_atomic
 from ..errors import ProjregError
 from .compensate import as_it_is, check_aspect, file_coverage, stated_camera_size
 from .outputs import guard_outputs
-from .warpmaps import WarpMap, warp_map
+from .warpmaps import WarpMap, check_content_size, warp_map
 from .warpmesh import DEFAULT_STEP, grid_mesh, mesh_error, obj_text, used_vertices
 
 FORMATS = {".exr": "STMap", ".obj": "mesh", ".npz": "cv2.remap maps"}  # by the suffix of --out
-MAX_CONTENT_SIDE = 16384  # cv2.remap's fixed-point positions hold +-32767 px; larger content is not a frame
 CONVENTION = (
     "projector pixel (x, y) shows the content point u = (x' + 0.5) / W, v = 1 - (y' + 0.5) / H, where (x', y') "
     "are content pixels (centres at integers, y down) of a W x H content spanning the camera frame"
@@ -59,15 +58,7 @@ def check_options(suffix: str, step: int | None, content_size: tuple[int, int] |
             f"--content-size is for cv2.remap maps (.npz), in content pixels; a {FORMATS[suffix]} is in normalised "
             "UV, for content of any size"
         )
-    if (
-        not isinstance(content_size, tuple | list)
-        or len(content_size) != 2
-        or not all(
-            isinstance(v, int | np.integer) and not isinstance(v, bool) and 1 <= v <= MAX_CONTENT_SIDE
-            for v in content_size
-        )
-    ):
-        raise ProjregError(f"--content-size: expected two integers in 1..{MAX_CONTENT_SIDE}, got {content_size!r}")
+    check_content_size(content_size, "--content-size")
 
 
 def encode_stmap(m: WarpMap, comments: str) -> bytes:

@@ -20,10 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..checks import is_int
 from ..errors import ProjregError
 from ..geometry.warp import pixel_maps
 from .compensate import as_it_is, content_mask, shown_pixels
 
+MAX_CONTENT_SIDE = 16384  # cv2.remap's fixed-point positions hold +-32767 px; larger content is not a frame
 OUTSIDE = -1.0  # UV of the projector pixels that show no content: a whole frame off it, for tools that ignore alpha
 
 
@@ -57,8 +59,11 @@ class WarpMap:
         bilinear sampling is exactly compensate's replicated border: ``cv2.remap(content, map_x, map_y,
         cv2.INTER_LINEAR)`` with its default constant border gives compensate's image there, and black
         (the border value) on the other pixels, whose positions lie a frame off the content.
+
+        Raises:
+            ProjregError: ``content_size`` is not two integers in 1..``MAX_CONTENT_SIDE``.
         """
-        ch, cw = content_size
+        ch, cw = check_content_size(content_size, "content_size")
         x = self.uv[..., 0].astype(np.float64) * cw - 0.5
         y = (1 - self.uv[..., 1].astype(np.float64)) * ch - 0.5
         x = np.where(self.shown, np.clip(x, 0, cw - 1), x)
@@ -69,6 +74,18 @@ class WarpMap:
         """Distance between this map's content points and ``other``'s, in camera pixels, float64 ``(H, W)``."""
         d = (self.uv.astype(np.float64) - other.uv) * (self.camera_size[1], self.camera_size[0])
         return np.hypot(d[..., 0], d[..., 1])
+
+
+def check_content_size(content_size: object, name: str) -> tuple[int, int]:
+    """``content_size`` as ``(H, W)`` if it is two integers (numpy's included) in 1..``MAX_CONTENT_SIDE``,
+    else one line naming ``name``."""
+    if (
+        not isinstance(content_size, tuple | list | np.ndarray)
+        or len(content_size) != 2
+        or not all(is_int(v) and 1 <= v <= MAX_CONTENT_SIDE for v in content_size)
+    ):
+        raise ProjregError(f"{name}: expected two integers in 1..{MAX_CONTENT_SIDE}, got {content_size!r}")
+    return int(content_size[0]), int(content_size[1])
 
 
 def warp_map(

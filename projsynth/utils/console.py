@@ -65,6 +65,14 @@ def output_path(text: str) -> Path:
     return Path(text)
 
 
+def input_path(text: str) -> Path:
+    """The value of an input option; an empty one (an unset shell variable) is refused, where a plain
+    ``Path`` would read it as the current directory and blame another option."""
+    if not text.strip():
+        raise typer.BadParameter("empty; give the path to read")
+    return Path(text)
+
+
 class Bar:
     """A tqdm bar on stderr, drawn only when the work starts (its first ``total`` or ``update``).
 

@@ -184,6 +184,15 @@ def test_bad_batches_frames_and_options_are_one_line_naming_the_argument(pairs, 
         (lambda: compensate(img1, reg_flow_only), r"^registration: expected a Registration"),
         (lambda: compensate(img1, registration, fill=300), r"^fill: must be an integer in 0..255"),
         (lambda: compensate(img1, registration, fill=-1), r"^fill: must be an integer in 0..255"),
+        (lambda: compensate(img1, registration, fill=True), r"^fill: must be an integer in 0..255, got True"),
+        (lambda: registrar.live(img1, img0, fill=True), r"^fill: must be an integer in 0..255, got True"),
+        (lambda: Registrar(tiny_ckpt, refine="no"), r"^refine: expected True or False, got 'no'"),  # was on
+        (lambda: Registrar(tiny_ckpt, refine=None), r"^refine: expected True or False, got None"),  # was off
+        (lambda: registrar.live(0, img0, predict_motion="no"), r"^predict_motion: expected True or False"),
+        (lambda: registrar.live(-1, img0), r"^captured -1: a camera index is in 0..9999"),  # crashed OpenCV
+        (lambda: registrar.live(99_999_999_999, img0), r"^captured 99999999999: a camera index is in 0..9999"),
+        (lambda: registrar.live("", img0), r"^captured: empty"),
+        (lambda: registrar.live(0, img0.astype(np.float32)), r"^content: expected a uint8 RGB array"),
         (  # 0 is a value, not "unset": refused, not read as the default 2.2
             lambda: compensate(img1, registration, white=img1, black=img1 // 4, gamma=0),
             r"^--gamma: expected a display/camera gamma",

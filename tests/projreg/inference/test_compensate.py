@@ -138,7 +138,7 @@ def test_a_pair_that_did_not_register_is_projected_as_it_is(tmp_path):
     ("args", "says"),
     [
         (["--coverage", "verified"], "--coverage must be one of complete, claimed"),
-        (["--min-confidence", "1.5"], "--min-confidence must be in 0..1"),
+        (["--min-confidence", "1.5"], "--min-confidence: expected a number in [0, 1], got 1.5"),
     ],
 )
 def test_bad_coverage_options_are_one_line_and_write_nothing(tmp_path, args, says):
@@ -248,3 +248,23 @@ def test_a_content_video_and_flows_that_do_not_pair_are_one_line_and_write_nothi
     (tmp_path / "flows" / "000002_flow.exr").write_bytes(b"not an exr")  # a flow that does not read, last
     one_line_error(_cli(*args, tmp_path / "p.mkv"), "000002_flow.exr")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["content.mkv", "flows"]  # no video, no temporary
+
+
+def test_a_frame_rate_out_of_range_or_for_a_picture_and_an_empty_content_are_one_line(tmp_path, one_line_error):
+    from projreg.inference.video import VideoWriter
+
+    with VideoWriter(tmp_path / "content.mkv", 30.0) as video:
+        video.write(_texture(0))
+    _shift_exr(tmp_path / "f.exr", 1.0)
+    cv2.imwrite(str(tmp_path / "c.png"), _texture(1))
+    (tmp_path / "afile").write_text("a file where a folder would be")
+    video = ("--content", tmp_path / "content.mkv", "--flow", tmp_path / "f.exr", "--out", tmp_path / "p.mkv")
+    for fps in ("inf", "1e12", "0"):  # inf hung in FFmpeg; 1e12 blamed --out
+        one_line_error(_cli(*video, "--fps", fps), "--fps: expected a number in (0, 1000]")
+    picture = ("--content", tmp_path / "c.png", "--flow", tmp_path / "f.exr", "--out", tmp_path / "p.png")
+    one_line_error(_cli(*picture, "--fps", "30"), "--fps sets the frame rate of a video", "drop --fps")  # was ignored
+    empty = _cli("--content", "", *picture[2:])  # was read as the current folder, and --out blamed
+    assert empty.exit_code == 2 and "Invalid value for '--content': empty" in empty.stderr  # a usage error
+    under_file = ("--content", tmp_path / "content.mkv", "--flow", tmp_path / "f.exr", "--out")
+    one_line_error(_cli(*under_file, tmp_path / "afile" / "p.mkv"), "--out", "afile is a file, not a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "c.png", "content.mkv", "f.exr"]

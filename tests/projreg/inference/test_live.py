@@ -197,3 +197,42 @@ def test_the_api_and_the_command_run_the_loop(tiny_ckpt, orbit, tmp_path, one_li
     one_line_error(CliRunner().invoke(app, missing), "--captured", "none.mkv")
     with pytest.raises(ProjregError, match="limit"):
         registrar.live(orbit[0], orbit[1], limit=0)
+
+
+def test_a_loop_runs_once(pipeline, orbit):
+    live = _loop(pipeline, orbit, cost=0.0)
+    live.limit = 1
+    assert len(list(live)) == 1
+    with pytest.raises(ProjregError, match="^the live loop runs once"):  # a second pass yielded nothing
+        list(live)
+    assert live.summary()["registered"] == 1
+
+
+def test_a_truncated_content_video_stops_the_loop_as_predict_refuses_it(pipeline, orbit, tmp_path):
+    content = tmp_path / "content.mkv"
+    with VideoWriter(content, 30.0) as video:
+        for s in orbit[2]:
+            video.write(s["projected"])
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(content.read_bytes()[: content.stat().st_size // 2])
+    clock = FakeClock(cost=0.05)  # the show moves on 1.5 content frames per clock reading
+    live = Live(pipeline, PlayedVideo(orbit[0], clock=clock, sleep=clock.sleep), Content(cut))
+    with pytest.raises(ProjregError, match=rf"^--content .*cut.mkv: frame \d+ cannot be read of the {FRAMES} its"):
+        record_live(live, tmp_path / "out.mkv", tmp_path / "stats.json")  # it looped over the readable frames
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["content.mkv", "cut.mkv"]
+
+
+def test_the_commands_bad_camera_and_output_are_one_line_before_the_loop(orbit, tmp_path, one_line_error):
+    import cv2
+
+    still = tmp_path / "still.png"
+    cv2.imwrite(str(still), orbit[1][..., ::-1])
+    (tmp_path / "afile").write_text("a file where a folder would be")
+    base = ["live", "--content", str(still), "-q", "--frames", "1"]
+    for captured, says in (("99999999999", "a camera index is in 0..9999"), ("", "--captured: empty")):
+        one_line_error(CliRunner().invoke(app, [*base, "--captured", captured]), says)
+    for option in ("--out", "--stats"):
+        name = "o.mkv" if option == "--out" else "s.json"
+        result = CliRunner().invoke(app, [*base, "--captured", str(orbit[0]), option, str(tmp_path / "afile" / name)])
+        one_line_error(result, option, "afile is a file, not a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "still.png"]

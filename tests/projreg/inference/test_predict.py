@@ -141,6 +141,11 @@ def test_errors_are_one_line_naming_the_file(pairs, tiny_ckpt, tmp_path, monkeyp
         "--viz",
         "ending in .png",
     )
+    one_line_error(  # two image files are one pair: nothing to batch (it was ignored)
+        _cli("--projected", a, "--captured", b, "--out", out, "--batch-size", 2, *m), "drop --batch-size"
+    )
+    empty = _cli("--projected", "", "--captured", b, "--out", out, *m)  # a usage error, not the current folder
+    assert empty.exit_code == 2 and "Invalid value for '--projected': empty" in empty.stderr
     blocker = tmp_path / "blocker"
     blocker.write_bytes(b"a file where the --viz folder would be")
     one_line_error(_cli("--projected", a, "--captured", b, "--out", out, "--viz", blocker / "v.png", *m), blocker)

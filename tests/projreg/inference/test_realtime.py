@@ -80,3 +80,47 @@ def test_content_on_show_is_the_video_frame_of_the_moment_and_loops(video, tmp_p
     content.close()
     still = Content(frames[4])
     assert still.at(1e6)[1] == 0 and still.at(0)[0] is frames[4]
+
+
+@pytest.mark.parametrize("index", [-1, 10_000, 99_999_999_999])
+def test_a_camera_index_out_of_range_is_refused_before_opencv_sees_it(index):
+    with pytest.raises(ProjregError, match=rf"^--captured {index}: a camera index is in 0..9999"):
+        DeviceCamera(index)  # -1 crashed OpenCV, 10**11 overflowed it
+
+
+def test_probing_a_missing_camera_prints_nothing(capfd):
+    with pytest.raises(ProjregError, match="OpenCV cannot open camera 97"):
+        DeviceCamera(97)
+    assert capfd.readouterr().err == ""  # OpenCV's own [ WARN ] lines are silenced while it probes
+
+
+@pytest.mark.parametrize("fps", [-5, 0, float("nan"), float("inf"), "30", True])
+def test_a_frame_rate_out_of_range_is_refused_when_the_video_is_given(video, fps):
+    path, frames = video
+    with pytest.raises(ProjregError, match=r"^fps: expected a number in \(0, 1000\]"):
+        PlayedVideo(path, fps=fps)
+    with pytest.raises(ProjregError, match=r"^fps: expected a number in \(0, 1000\]"):
+        Content(path, fps=fps)
+
+
+def test_none_is_the_videos_own_rate_and_a_content_image_is_checked(video):
+    path, frames = video
+    assert PlayedVideo(path).fps == Content(path).fps == 10.0 and PlayedVideo(path, fps=np.float32(5)).fps == 5.0
+    with pytest.raises(ProjregError, match=r"^content: expected a uint8 RGB array \(H, W, 3\), got float32"):
+        Content(frames[0].astype(np.float32), "content")
+    with pytest.raises(ProjregError, match="^fps: --content is a still image"):
+        Content(frames[0], fps=5)
+    with pytest.raises(ProjregError, match="^--content: empty"):
+        Content("")
+
+
+def test_a_truncated_content_video_is_refused_when_the_show_reaches_it(video, tmp_path):
+    path, frames = video
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    content = Content(cut)
+    content.start(0.0)
+    assert content.at(0.0)[1] == 0
+    with pytest.raises(ProjregError, match=r"^--content .*cut.mkv: frame \d+ cannot be read of the 10 its container"):
+        content.at(0.95)  # frame 9: past what reads; it looped over the readable frames before
+    content.close()

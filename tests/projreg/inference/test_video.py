@@ -88,3 +88,38 @@ def test_a_folder_a_video_and_a_still_image_are_one_sides_frames(tmp_path):
     with pytest.raises(ProjregError, match=r"--captured .*2.png is 48x16 px but .*0.png, the sequence's first"):
         survey(folder)
     assert len(survey(folder, check_size=False)) == 3
+
+
+@pytest.mark.parametrize("fps", [float("inf"), float("nan"), None, 0, -5, 1e12, "30", True])
+def test_a_frame_rate_out_of_range_is_refused_naming_fps(tmp_path, fps):
+    with pytest.raises(ProjregError, match=r"^fps: expected a number in \(0, 1000\]"):  # inf hung in FFmpeg
+        VideoWriter(tmp_path / "x.mkv", fps)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "frame",
+    [
+        np.zeros((32, 48, 3), np.float32),
+        np.zeros((32, 48), np.uint8),  # grey
+        np.zeros((32, 48, 4), np.uint8),  # RGBA
+        np.zeros((32, 48, 3), np.uint8).tolist(),
+    ],
+)
+def test_a_frame_that_is_not_uint8_rgb_is_refused_naming_it_and_nothing_is_written(tmp_path, frame):
+    with (
+        pytest.raises(ProjregError, match=r"^--out .*x.mkv: frame 0: expected a uint8 RGB"),
+        VideoWriter(tmp_path / "x.mkv", np.float32(25)) as writer,
+    ):
+        writer.write(frame)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_video_under_a_file_is_refused_before_any_frame(tmp_path):
+    (tmp_path / "afile").write_text("a file where a folder would be")
+    with pytest.raises(ProjregError, match=r"^--out .*afile/x.mkv: cannot write \(.*afile is a file, not a folder\)"):
+        VideoWriter(tmp_path / "afile" / "x.mkv", 30)
+    writer = VideoWriter(tmp_path / "x.mkv", 30)
+    writer.path, writer.tmp = tmp_path / "afile" / "x.mkv", tmp_path / "afile" / ".x.tmp.mkv"
+    writer.discard()  # nothing was written under the file: nothing to remove, no error masking the first
+    assert [p.name for p in tmp_path.iterdir()] == ["afile"]

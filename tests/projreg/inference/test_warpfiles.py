@@ -229,6 +229,33 @@ def test_the_files_hold_the_map_bit_for_bit(shape, shift, content):
     assert tuple(npz["content_size"]) == content
 
 
+@pytest.mark.parametrize(
+    ("out", "says"), [(None, "got NoneType"), (5, "got int"), (b"w.exr", "got bytes"), ("", "empty")]
+)
+def test_the_api_refuses_an_out_that_is_not_a_path(tmp_path, out, says):
+    flow, claimed, confidence = flow_file(tmp_path / "f.exr")
+    reg = Registration(flow, claimed, confidence, True, "", CAMERA)
+    for source in (reg, tmp_path / "f.exr"):
+        with pytest.raises(ProjregError, match=rf"^out: .*{says}"):
+            export_warp(source, out)
+    assert [p.name for p in tmp_path.iterdir()] == ["f.exr"]
+
+
+@pytest.mark.parametrize("min_confidence", ["0.5", None, True, float("nan")])
+def test_the_api_refuses_a_min_confidence_that_is_not_a_number_in_0_1(tmp_path, min_confidence):
+    flow, claimed, confidence = flow_file(tmp_path / "f.exr")
+    reg = Registration(flow, claimed, confidence, True, "", CAMERA)
+    calls = (
+        lambda: warp_map(reg, min_confidence=min_confidence),
+        lambda: export_warp(reg, tmp_path / "w.exr", min_confidence=min_confidence),
+        lambda: compensate(texture(CAMERA), reg, min_confidence=min_confidence),
+    )
+    for call in calls:  # a string and None raised a raw TypeError; True was read as 1
+        with pytest.raises(ProjregError, match=r"^--min-confidence: expected a number in \[0, 1\]"):
+            call()
+    assert warp_map(reg, min_confidence=np.float32(0.3)).shown.sum() == warp_map(reg, min_confidence=0.3).shown.sum()
+
+
 def test_the_api_refuses_a_content_size_that_is_not_two_integers(tmp_path):
     flow, claimed, confidence = flow_file(tmp_path / "f.exr")
     reg = Registration(flow, claimed, confidence, True, "", CAMERA)

@@ -72,6 +72,21 @@ def test_remap_maps_are_the_positions_in_content_pixels_clamped_to_the_outer_cen
     assert (map_x[~m.shown] < -1).all()  # a frame off the content: black under cv2.remap's constant border
 
 
+@pytest.mark.parametrize(
+    "size", [None, (96,), "96x128", (0, 0), (-5, -5), (float("nan"),) * 2, (96.5, 128.5), (True, 8)]
+)
+def test_remap_maps_refuse_a_content_size_that_is_not_two_positive_integers(size):
+    m = warp_map(bent_homography(), camera_size=CAMERA)
+    with pytest.raises(ProjregError, match=r"^content_size: expected two integers in 1..16384"):
+        m.remap_maps(size)  # (0, 0) and (nan, nan) returned nonsense maps, None raised a raw TypeError
+
+
+def test_remap_maps_take_numpy_integers():
+    m = warp_map(bent_homography(), camera_size=CAMERA)
+    for a, b in zip(m.remap_maps(np.array([120, 160])), m.remap_maps((120, 160)), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("step", [5, 8, 16])
 def test_the_reported_interpolation_error_is_the_rendered_meshs(step):
     m = warp_map(bent_homography(), camera_size=CAMERA)
