@@ -40,9 +40,9 @@ reads as the algorithm:
    is not the projection mirrored (:mod:`~projreg.refine.handedness`), and a claim under ``confirm_below``
    of the frame stays where the frame's alignment started from it leaves it
    (:func:`~projreg.refine.candidates.stays`); otherwise nothing is claimed (and where nothing verified,
-   the answer is the homography of the network's flow, its smoothest statement). Where the answer bends,
-   its claim is only where texture that fixes a position within one check window lies near enough to pin
-   it (:func:`~projreg.refine.verify.pinned`): a curve alone slides along itself.
+   the answer is the homography of the network's flow, its smoothest statement). A registered answer's
+   claim is then limited, where it bends, to pixels near texture that fixes a position within one check
+   window (:func:`~projreg.refine.verify.pinned`): a curve alone slides along itself.
 
 A pair longer than ``images.max_side`` runs stages 1-8 shrunk to it; with ``images.verify_full``
 (``balanced``: 512 px) the candidates are then resized to the pair's own grid and the winner verified
@@ -277,12 +277,9 @@ class GeometricRefiner:
             # so the answer stays with the network's hypothesis rather than another start's
             search.best = max(net, key=lambda c: scores[c.key])
             search.conf = self.confidence(ctx, search.cands, scores, search.best, search.repeats)
-        best, raw = search.best, search.conf
-        verified = (raw >= CONFIDENT).mean() >= cfg.registered_above  # some region verified: the search's answer
-        # stands; its claim is where the texture also pins it (a curve alone slides along itself on a bent surface)
-        pin = verify.pinned(ctx, search.cands, scores, best, self._workers.dis_flows) if cfg.pin and verified else None
-        conf = raw if pin is None else raw * pin
+        best, conf = search.best, search.conf
         claimed = conf >= CONFIDENT
+        verified = claimed.mean() >= cfg.registered_above  # some region verified: the search's answer stands
         why = "" if self._registers(claimed) else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if search.mirror is not None and not why:
             why = self._mirrored(search)
@@ -291,10 +288,12 @@ class GeometricRefiner:
         if not why and claimed.mean() < cfg.confirm_below:  # a small claim: is it the frame's alignment too?
             why = unconfirmed(claimed, stays(ctx, best.flow, claimed), cfg.confirm_share, self.config.align.trust_px)
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
-            raw = verify.bridged(ctx, raw, best, search.cands, scores, search.repeats, self._workers)
-            conf = raw if pin is None else raw * pin
-            claimed = conf >= CONFIDENT
+            conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers)
             search.stages.append("bridge")
+        if not why and cfg.pin:  # the claim is where the texture also pins the answer (a curve alone slides
+            # along itself on a bent surface): a precision of the claim, not the verdict on the registration
+            conf = conf * verify.pinned(ctx, search.cands, scores, best, self._workers.dis_flows)
+        claimed = conf >= CONFIDENT
         if not verified and search.network.H is not None:
             # nothing verified: residuals fitted on images that carry no evidence only add noise, and the
             # homography of the network's own flow is the smoothest statement of its hypothesis
