@@ -185,6 +185,8 @@ def pinned(
         np.asarray(weight * ramp(ratio, cfg.pin_fail, cfg.pin_pass), np.float32), small, interpolation=cv2.INTER_AREA
     )
     near = reach(flow, texture, radius, cfg, scale, f) / radius  # in radii
+    if near.min() >= cfg.span_radii:  # nowhere bent: the span test's to judge everywhere
+        return np.ones((h, w), np.float32)
     at = np.log2(np.clip(near, 1.0, cfg.span_radii))
     levels = [r for r in (1.0, 2.0, 4.0) if r < cfg.span_radii] + [cfg.span_radii]  # radii, each twice the last
     shares = [gaussian(corner, r * radius / f) / np.maximum(gaussian(texture, r * radius / f), 1e-6) for r in levels]

@@ -280,6 +280,11 @@ class GeometricRefiner:
         best, conf = search.best, search.conf
         claimed = conf >= CONFIDENT
         verified = claimed.mean() >= cfg.registered_above  # some region verified: the search's answer stands
+        # the claim's pinning (below) is made on the pool beside the verdict's checks, used if it registers (it
+        # reads the checks' maps, made with the answer's confidence: no DIS is queued from the pool)
+        pins = None
+        if cfg.pin and verified:
+            pins = self._workers.submit(verify.pinned, ctx, search.cands, scores, best, self._workers.dis_flows)
         why = "" if self._registers(claimed) else unverified(claimed, search.repeats, ctx.textured, cfg.repeating_share)
         if search.mirror is not None and not why:
             why = self._mirrored(search)
@@ -290,9 +295,11 @@ class GeometricRefiner:
         if not why and cfg.bridge:  # the answer's flat gaps, where two models of them agree
             conf = verify.bridged(ctx, conf, best, search.cands, scores, search.repeats, self._workers)
             search.stages.append("bridge")
-        if not why and cfg.pin:  # the claim is where the texture also pins the answer (a curve alone slides
-            # along itself on a bent surface): a precision of the claim, not the verdict on the registration
-            conf = conf * verify.pinned(ctx, search.cands, scores, best, self._workers.dis_flows)
+        if pins is not None and not why:  # the claim is where the texture also pins the answer (a curve alone
+            # slides along itself on a bent surface): a precision of the claim, not the verdict on the registration
+            conf = conf * pins.result()
+        elif pins is not None:
+            pins.cancel()
         claimed = conf >= CONFIDENT
         if not verified and search.network.H is not None:
             # nothing verified: residuals fitted on images that carry no evidence only add noise, and the
