@@ -73,8 +73,10 @@ class Tracker:
         tc = self.config
         light = {"views": tc.views, "polish": tc.polish, "from_surface": tc.from_surface} if cfg.align.direct else {}
         # a tracked frame follows a registration whose capture was checked for a mirror and whose claim the frame's
-        # alignment confirmed: neither is asked again (a frame's claim shrinks as the projection leaves the view)
-        follow = {"mirror_side": None, "confirm_below": 0.0}
+        # alignment confirmed: neither is asked again (a frame's claim shrinks as the projection leaves the view);
+        # its claim is the checks' (the pinning on a bent surface, 12-16 ms, is the full registrations': a
+        # real-time loop's frames)
+        follow = {"mirror_side": None, "confirm_below": 0.0, "pin": False}
         self.follow = GeometricRefiner(cfg.with_sections(align=light, confidence=follow))
         self.counts = dict.fromkeys(STEPS, 0)
         self.last = ""

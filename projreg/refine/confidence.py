@@ -176,9 +176,9 @@ def pinned(
     failing any check (:func:`spanned` reads the tensor summed over the whole reach, where a curve's
     directions span both). ``scale``: the user's pixels per pixel of the grid (the bend tolerance is
     ``cfg.pin_bend_px`` of the user's). Every map here is smooth at a radius: it is computed on the grid
-    shrunk ``radius // cfg.shrunk_sigma`` times and brought back bilinearly."""
+    shrunk ``radius // cfg.shrunk_sigma`` times (twice at least) and brought back bilinearly."""
     h, w = weight.shape
-    f = max(1, int(radius // cfg.shrunk_sigma))
+    f = max(2, int(radius // cfg.shrunk_sigma))  # a radius is 3 px or more on that grid
     small = (max(1, w // f), max(1, h // f))
     texture = cv2.resize(np.asarray(weight, np.float32), small, interpolation=cv2.INTER_AREA)
     corner = cv2.resize(
