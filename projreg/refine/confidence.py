@@ -195,7 +195,7 @@ def pinned(
         t = np.clip((at - marks[k - 1]) / (marks[k] - marks[k - 1]), 0.0, 1.0)
         out = np.where(at > marks[k - 1], (1 - t) * shares[k - 1] + t * shares[k], out)
     out = np.where(near >= cfg.span_radii, 1.0, ramp(out, 0.0, cfg.pin_share)).astype(np.float32)
-    return out if f == 1 else cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
+    return cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def reach(
