@@ -113,6 +113,29 @@ def test_gen_refuses_shards_without_a_plan(cli, planar_ds, copy_dataset):
     cli.assert_one_line_error(cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8"), "--out")
 
 
+def test_gen_refuses_a_folder_of_other_files_and_resumes_its_own(cli, tmp_path):
+    tiny = ["--pairs", "1", "--size", "48x64", "--transforms", "0", "--shard-size", "1", "-q"]
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("IMG_0001.jpg", "notes.txt"):
+        (photos / name).write_bytes(b"someone's file")
+    line = cli.assert_one_line_error(cli.run("gen", "--out", photos, *tiny), f"--out {photos}: holds 2 file(s)")
+    assert "(e.g. IMG_0001.jpg)" in line and "choose a new or empty folder" in line
+    assert sorted(p.name for p in photos.iterdir()) == ["IMG_0001.jpg", "notes.txt"]
+    assert (photos / "notes.txt").read_bytes() == b"someone's file"
+    hidden = tmp_path / "hidden"  # names beginning with a dot, which file managers hide, are not counted
+    hidden.mkdir()
+    (hidden / ".DS_Store").write_bytes(b"finder")
+    assert cli.run("gen", "--out", hidden, *tiny).exit_code == 0
+    (hidden / "shard-00001.h5").unlink()  # an interrupted run: one shard and the manifest missing
+    (hidden / "manifest.json").unlink()
+    (hidden / "shard-00001.h5.tmp").write_bytes(b"\x89HDF partial")
+    result = cli.run("gen", "--out", hidden, *tiny[:-1])
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (1, 1, 2)
+    assert (hidden / ".DS_Store").read_bytes() == b"finder"
+
+
 def test_type_errors_exit_2(cli, tmp_path):
     # Parsed by typer itself (a multi-line usage message, not ours): only the exit status is checked.
     result = cli.run("gen", "--out", tmp_path / "ds", "--pairs", "many")
