@@ -35,11 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.shards import is_dataset_file
 from ..errors import ProjsynthError
 from ..flow.formats import encode_flow_exr
 from ..utils.files import remove_stale_temporaries, write_atomic_all
 from ..utils.images import IMAGE_EXTENSIONS, load_gray
-from ..utils.outputs import folder_files, refuse_overwriting_inputs
+from ..utils.outputs import folder_files, refuse_foreign_files, refuse_overwriting_inputs
 from .captured import captured_samples, write_captured_dataset
 from .dots import decode_dots
 from .edges import decode_edges, window_noise
@@ -192,6 +193,7 @@ def decode_folder(
     inputs += folder_files("--patterns", Path(patterns_dir)) if patterns_dir is not None else []
     inputs += [(option, Path(p)) for pair in pairs for option, p in zip(("--pair", "--pair"), pair, strict=True)]
     refuse_overwriting_inputs([("--out", out)], inputs)
+    refuse_foreign_files(out, _decode_owns, "projsynth decode", marks=(CORRESPONDENCE_FILE, DECODE_FILE))
     if projector is None:
         photos, files = load_captures(patterns, captures)
     else:
@@ -231,6 +233,12 @@ def decode_folder(
         else (f"{result.valid.mean():.1%} of projector pixels")
     )
     return f"{what} decoded into {CORRESPONDENCE_FILE}" + (f"; dataset of {len(samples)} pairs" if samples else "")
+
+
+def _decode_owns(name: str) -> bool:
+    """Whether ``name`` is one ``decode`` writes in ``--out``: the correspondence, its record, and the
+    dataset of ``--pair``."""
+    return name in (CORRESPONDENCE_FILE, DECODE_FILE) or is_dataset_file(name)
 
 
 def _check_layout(layout: str, patterns_dir: Path | None, projector: tuple[int, int] | None) -> None:
