@@ -41,7 +41,7 @@ from ..flow.formats import encode_flow_exr
 from ..utils.files import remove_stale_temporaries, write_atomic_all
 from ..utils.images import IMAGE_EXTENSIONS, load_gray
 from ..utils.outputs import folder_files, refuse_foreign_files, refuse_overwriting_inputs
-from .captured import captured_samples, write_captured_dataset
+from .captured import captured_samples, require_captured_out, write_captured_dataset
 from .dots import decode_dots
 from .edges import decode_edges, window_noise
 from .graybits import bits_agree, gray_stripe
@@ -204,6 +204,8 @@ def decode_folder(
     require_decoded(result, patterns, photos, f"--captures {captures}")
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
+    if samples:  # refused before the earlier decode there is touched
+        require_captured_out(out, patterns, patterns_dir, files, samples, camera_size)
     record = {
         "patterns": None if patterns_dir is None else str(patterns_dir),
         "layout": layout,

@@ -205,3 +205,16 @@ def test_decode_refuses_a_folder_of_other_files_and_rewrites_its_own(rig_run, cl
     assert result.exit_code == 0, result.stderr
     assert (out / "correspondence.exr").read_bytes() == first
     assert sorted(p.name for p in out.iterdir()) == [".DS_Store", "correspondence.exr", "decode.json"]
+
+
+def test_decode_refuses_another_dataset_before_touching_its_earlier_output(rig_run, cli, tmp_path):
+    out = tmp_path / "real"
+    decode = ["decode", "--patterns", rig_run / "pat", "--captures", rig_run / "photos", "--out", out, "--pair"]
+    content = rig_run / "cap" / "content"
+    assert cli.run(*decode, content / "picture-projected.png", content / "picture.png").exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    other = [rig_run / "pat" / "00-white.png", rig_run / "photos" / "00-white.png"]
+    cli.assert_one_line_error(cli.run(*decode, *other), f"--out {out}: holds another dataset")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # decode.json kept: still a finished decode
+    (out / "dataset.json").write_text("[1]")
+    cli.assert_one_line_error(cli.run(*decode, *other), f"{out / 'dataset.json'}: not a plan")
