@@ -78,6 +78,8 @@ class Registrar:
             raise ProjregError(f"max_side: expected an integer >= 16, got {max_side!r}")
         if model is not None and not isinstance(model, str | os.PathLike):
             raise ProjregError(f"model: expected None, 'reference' or a path, got {type(model).__name__}")
+        if model is not None:
+            check_path("model", model)  # '' would be read as the current folder
         self.pipeline = Pipeline(
             model,
             quality=quality,
@@ -203,7 +205,7 @@ def _response(response: Response | str | Path | None) -> Response | None:
     if not isinstance(response, str | os.PathLike):
         return response
     try:
-        return read_response(Path(response))
+        return read_response(check_path("response", response))
     except ProjsynthError as e:
         raise ProjregError(str(e)) from e
 
@@ -291,7 +293,7 @@ def export_warp(
     out = check_path("out", out)
     if isinstance(source, str | os.PathLike):
         return export_warp_file(
-            Path(source),
+            check_path("source", source),
             out,
             step=step,
             content_size=content_size,

@@ -78,10 +78,14 @@ def _parse_crop(text: str) -> tuple[int, int] | None:
 
 @app.command(cls=Command)
 def train(
-    data: Annotated[list[Path], typer.Option(help="Training dataset directory (repeat for several).", metavar="DIR")],
+    data: Annotated[
+        list[Path],
+        typer.Option(help="Training dataset directory (repeat for several).", parser=input_path, metavar="DIR"),
+    ],
     out: Annotated[Path, typer.Option(help="Run directory.", parser=output_path, metavar="RUN")],
     val: Annotated[
-        list[Path] | None, typer.Option(help="Validation dataset directory (repeatable).", metavar="DIR")
+        list[Path] | None,
+        typer.Option(help="Validation dataset directory (repeatable).", parser=input_path, metavar="DIR"),
     ] = None,
     model: Annotated[str, typer.Option(help="small or base.", metavar="small|base")] = "small",
     no_ssjm: Annotated[bool, typer.Option("--no-ssjm", help="Build the ablation without SSJM.")] = False,
@@ -236,6 +240,7 @@ def export(
             help="Checkpoint written by `projreg train` (last.pt or "
             "best.pt); with --onnx also `reference`, the default "
             "there.",
+            parser=input_path,
             metavar="CKPT",
         ),
     ] = None,
@@ -289,10 +294,12 @@ RESPONSE_HELP = (
 
 @app.command(cls=Command)
 def bench(
-    data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).", metavar="DIR")],
+    data: Annotated[Path, typer.Option(help="Dataset directory (projsynth shards).", parser=input_path, metavar="DIR")],
     model: Annotated[
         list[Path] | None,
-        typer.Option(help="Checkpoint, or `reference` (repeatable); default: the reference.", metavar="CKPT"),
+        typer.Option(
+            help="Checkpoint, or `reference` (repeatable); default: the reference.", parser=input_path, metavar="CKPT"
+        ),
     ] = None,
     baselines: Annotated[
         str | None,
@@ -434,7 +441,9 @@ def predict(
     ] = None,
     model: Annotated[
         Path | None,
-        typer.Option(help="Checkpoint, or `reference`; default: the shipped reference model.", metavar="CKPT"),
+        typer.Option(
+            help="Checkpoint, or `reference`; default: the shipped reference model.", parser=input_path, metavar="CKPT"
+        ),
     ] = None,
     max_side: Annotated[int, typer.Option(help="Larger pairs are shrunk to this longer side for inference.")] = 1024,
     refine: Annotated[
@@ -456,13 +465,16 @@ def predict(
         typer.Option(
             help="Camera photo of a full-white projection: the surface is divided out of every captured image "
             "(one photo for all pairs: a fixed rig).",
+            parser=input_path,
             metavar="IMG",
         ),
     ] = None,
     black: Annotated[
         Path | None,
         typer.Option(
-            help="With --white: camera photo of a full-black projection (removes the ambient light).", metavar="IMG"
+            help="With --white: camera photo of a full-black projection (removes the ambient light).",
+            parser=input_path,
+            metavar="IMG",
         ),
     ] = None,
     response: ResponseFile = None,

@@ -45,8 +45,12 @@ def compensate(
     photometric: Annotated[
         bool, typer.Option("--photometric", help="Also correct colour and light (needs --white and --black).")
     ] = False,
-    white: Annotated[Path | None, typer.Option(help="Camera photo of a full-white projection.", metavar="IMG")] = None,
-    black: Annotated[Path | None, typer.Option(help="Camera photo of a full-black projection.", metavar="IMG")] = None,
+    white: Annotated[
+        Path | None, typer.Option(help="Camera photo of a full-white projection.", parser=input_path, metavar="IMG")
+    ] = None,
+    black: Annotated[
+        Path | None, typer.Option(help="Camera photo of a full-black projection.", parser=input_path, metavar="IMG")
+    ] = None,
     response: ResponseFile = None,
     gamma: Annotated[
         float | None,

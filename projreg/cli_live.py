@@ -62,7 +62,9 @@ def live(
     ] = None,
     model: Annotated[
         Path | None,
-        typer.Option(help="Checkpoint, or `reference`; default: the shipped reference model.", metavar="CKPT"),
+        typer.Option(
+            help="Checkpoint, or `reference`; default: the shipped reference model.", parser=input_path, metavar="CKPT"
+        ),
     ] = None,
     quality: Quality = LIVE_QUALITY,
     fast: Fast = False,

@@ -8,6 +8,8 @@ from typing import Annotated
 
 import typer
 
+from projsynth.utils.console import input_path
+
 from .errors import ProjregError
 from .refine.config import DEFAULT_QUALITY
 
@@ -36,8 +38,7 @@ Backend = Annotated[
 Quality = Annotated[
     str,
     typer.Option(
-        help="fast, balanced or accurate: where the network runs and how far the refinement searches "
-        "(docs/model.md).",
+        help="fast, balanced or accurate: where the network runs and how far the refinement searches (docs/model.md).",
         metavar="fast|balanced|accurate",
     ),
 ]
@@ -45,7 +46,9 @@ Fast = Annotated[bool, typer.Option("--fast", help="The same as --quality fast."
 ResponseFile = Annotated[
     Path | None,
     typer.Option(
-        help="The devices' curves measured by `projsynth response` (replaces gamma 2.2).", metavar="FILE.json"
+        help="The devices' curves measured by `projsynth response` (replaces gamma 2.2).",
+        parser=input_path,
+        metavar="FILE.json",
     ),
 ]
 
@@ -59,9 +62,7 @@ Coverage = Annotated[
 ]
 MinConfidence = Annotated[
     float,
-    typer.Option(
-        help="complete: show content only where the flow's confidence is at least this (0..1).", metavar="C"
-    ),
+    typer.Option(help="complete: show content only where the flow's confidence is at least this (0..1).", metavar="C"),
 ]
 
 

@@ -31,6 +31,8 @@ class Dataset(Sequence[dict]):
     def __init__(self, path: str | Path) -> None:
         if not isinstance(path, str | Path):
             raise TypeError(f"path: expected a dataset directory (str or Path), got {type(path).__name__}")
+        if not str(path).strip():
+            raise ProjsynthError("path: empty; give a dataset directory")
         self.reader = ShardReader(Path(path))
 
     def __len__(self) -> int:

@@ -21,7 +21,7 @@ from .structured.capture import capture as capture_scene
 from .structured.decode import decode_folder
 from .structured.patterns import make_set, parse_grid, read_patterns, write_patterns
 from .structured.response import fit_folder
-from .utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, output_path, run_console
+from .utils.console import PLAIN_HELP, Bar, Command, MaxFlow, Quiet, fail, input_path, output_path, run_console
 
 app = typer.Typer(**PLAIN_HELP, help="Reproducible projector-camera pairs with exact ground-truth flow.")
 
@@ -40,9 +40,11 @@ def gen(
     out: Annotated[
         Path, typer.Option(help="Dataset directory (created; re-running resumes).", parser=output_path, metavar="DIR")
     ],
-    natural: Annotated[Path | None, typer.Option(help="Folder of natural images (recursive).", metavar="DIR")] = None,
+    natural: Annotated[
+        Path | None, typer.Option(help="Folder of natural images (recursive).", parser=input_path, metavar="DIR")
+    ] = None,
     generated: Annotated[
-        Path | None, typer.Option(help="Folder of generated/illustration images.", metavar="DIR")
+        Path | None, typer.Option(help="Folder of generated/illustration images.", parser=input_path, metavar="DIR")
     ] = None,
     pairs: Annotated[int | None, typer.Option(help="Image pairs (default: 4 built-in, or all in the split).")] = None,
     size: Annotated[str, typer.Option(help="Image size HxW.", metavar="HxW")] = "384x512",
@@ -52,7 +54,8 @@ def gen(
         str | None, typer.Option(help="Transform ids, e.g. 0-15 or 0,5,9 (default all).", metavar="SPEC")
     ] = None,
     table: Annotated[
-        Path | None, typer.Option(help="TOML transform table replacing the built-in one.", metavar="FILE.toml")
+        Path | None,
+        typer.Option(help="TOML transform table replacing the built-in one.", parser=input_path, metavar="FILE.toml"),
     ] = None,
     shard_size: Annotated[
         int | None,
@@ -119,7 +122,9 @@ def gen(
 
 
 @app.command("merge", cls=Command)
-def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")]) -> None:
+def merge_cmd(
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", parser=input_path, metavar="DIR")],
+) -> None:
     """Write manifest.json once every shard exists (after a job array)."""
     try:
         manifest = merge(root)
@@ -130,7 +135,8 @@ def merge_cmd(root: Annotated[Path, typer.Argument(help="Dataset directory.", me
 
 @app.command(cls=Command)
 def verify(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")], quiet: Quiet = False
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", parser=input_path, metavar="DIR")],
+    quiet: Quiet = False,
 ) -> None:
     """Check schema, hashes, NaN/Inf and flow/valid consistency; exit 1 naming each bad shard."""
     try:
@@ -148,7 +154,7 @@ def verify(
 
 @app.command(cls=Command)
 def inspect(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")],
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", parser=input_path, metavar="DIR")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     quiet: Quiet = False,
 ) -> None:
@@ -199,7 +205,7 @@ def inspect_table(report: dict) -> list[str]:
 
 @app.command(cls=Command)
 def export(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")],
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", parser=input_path, metavar="DIR")],
     out: Annotated[Path, typer.Option(help="Output folder.", parser=output_path, metavar="DIR")],
     limit: Annotated[int | None, typer.Option(help="Export only the first N samples.")] = None,
     max_flow: MaxFlow = None,
@@ -217,8 +223,8 @@ def export(
 
 @app.command(cls=Command)
 def preview(
-    root: Annotated[Path, typer.Argument(help="Dataset directory.", metavar="DIR")],
-    out: Annotated[Path, typer.Option(help="PNG to write.", metavar="FILE.png")],
+    root: Annotated[Path, typer.Argument(help="Dataset directory.", parser=input_path, metavar="DIR")],
+    out: Annotated[Path, typer.Option(help="PNG to write.", parser=output_path, metavar="FILE.png")],
     count: Annotated[int, typer.Option(help="Rows (samples spread over the dataset).")] = 8,
     max_flow: MaxFlow = None,
 ) -> None:
@@ -235,7 +241,8 @@ def transforms_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     as_toml: Annotated[bool, typer.Option("--toml", help="Print TOML (editable, for --table).")] = False,
     table: Annotated[
-        Path | None, typer.Option(help="Show this TOML table instead of the built-in one.", metavar="FILE.toml")
+        Path | None,
+        typer.Option(help="Show this TOML table instead of the built-in one.", parser=input_path, metavar="FILE.toml"),
     ] = None,
 ) -> None:
     """Print the transform table (160 configurations by default)."""
@@ -308,7 +315,8 @@ def patterns(
 @app.command(cls=Command)
 def capture(
     patterns_dir: Annotated[
-        Path, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
+        Path,
+        typer.Option("--patterns", help="Folder written by `projsynth patterns`.", parser=input_path, metavar="DIR"),
     ],
     out: Annotated[
         Path,
@@ -322,16 +330,19 @@ def capture(
         str | None, typer.Option(help="Camera frame HxW (default: the projector's).", metavar="HxW")
     ] = None,
     content: Annotated[
-        list[Path] | None, typer.Option(help="Picture to photograph too (repeatable).", metavar="IMG")
+        list[Path] | None,
+        typer.Option(help="Picture to photograph too (repeatable).", parser=input_path, metavar="IMG"),
     ] = None,
     background: Annotated[
-        Path | None, typer.Option(help="Surface as the camera sees it (default: built-in).", metavar="IMG")
+        Path | None,
+        typer.Option(help="Surface as the camera sees it (default: built-in).", parser=input_path, metavar="IMG"),
     ] = None,
     blend: Annotated[
         str, typer.Option(help="Photometric model: physical (gamma, response) or paper.", metavar="physical|paper")
     ] = "physical",
     table: Annotated[
-        Path | None, typer.Option(help="TOML transform table replacing the built-in one.", metavar="FILE.toml")
+        Path | None,
+        typer.Option(help="TOML transform table replacing the built-in one.", parser=input_path, metavar="FILE.toml"),
     ] = None,
 ) -> None:
     """Virtual rig: photograph the patterns (and pictures) through one simulated scene, with exact truth."""
@@ -366,6 +377,7 @@ def decode(
         Path,
         typer.Option(
             help="Folder of the photos: named as the patterns (any extension), or in OpenCV's order by name.",
+            parser=input_path,
             metavar="DIR",
         ),
     ],
@@ -376,7 +388,8 @@ def decode(
         ),
     ],
     patterns_dir: Annotated[
-        Path | None, typer.Option("--patterns", help="Folder written by `projsynth patterns`.", metavar="DIR")
+        Path | None,
+        typer.Option("--patterns", help="Folder written by `projsynth patterns`.", parser=input_path, metavar="DIR"),
     ] = None,
     layout: Annotated[
         str,
@@ -393,6 +406,8 @@ def decode(
     """Decode pattern photos into the projector -> camera correspondence (and a dataset of pairs)."""
     try:
         size = None if projector is None else parse_size(projector, "--projector")
+        if any(not text.strip() for two in pair or [] for text in two):  # '' would be read as the current folder
+            raise ProjsynthError("--pair: empty; give the paths of a picture and of its photo")
         pairs = [(Path(a), Path(b)) for a, b in pair or []]
         summary = decode_folder(patterns_dir, captures, out, pairs, layout=layout, projector=size)
     except ProjsynthError as e:
@@ -403,9 +418,17 @@ def decode(
 @app.command(cls=Command)
 def response(
     patterns_dir: Annotated[
-        Path, typer.Option("--patterns", help="Folder written by `projsynth patterns --kind response`.", metavar="DIR")
+        Path,
+        typer.Option(
+            "--patterns",
+            help="Folder written by `projsynth patterns --kind response`.",
+            parser=input_path,
+            metavar="DIR",
+        ),
     ],
-    captures: Annotated[Path, typer.Option(help="Folder of the photos, named as the patterns.", metavar="DIR")],
+    captures: Annotated[
+        Path, typer.Option(help="Folder of the photos, named as the patterns.", parser=input_path, metavar="DIR")
+    ],
     out: Annotated[Path, typer.Option(help="Response file to write (JSON).", parser=output_path, metavar="FILE.json")],
 ) -> None:
     """Measure the camera's and the projector's response curves from photos of grey levels (docs/real-rig.md)."""

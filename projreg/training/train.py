@@ -98,6 +98,7 @@ class TrainConfig:
             (self.val_every >= 1 or not self.val, "--val-every must be >= 1"),
             (self.val_samples >= 1, "--val-samples must be >= 1"),
             (0 < self.gamma <= 1, "--gamma must be in (0, 1]"),
+            (self.init is None or self.init.strip(), "--init: empty; give a checkpoint file or `reference`"),
         ]
         for ok, msg in checks:
             if not ok:

@@ -24,12 +24,14 @@ from threadpoolctl import threadpool_limits
 
 from ..errors import ProjsynthError
 from ..utils.jit import KERNELS, uncompiled_kernels
+from ..utils.outputs import refuse_foreign_files
 from ..versions import FORMAT_VERSION, __version__
 from .plan import Plan, make_sample, sample_key, source_images
 from .shards import (
     MANIFEST,
     PLAN_FILE,
     assemble_manifest,
+    is_dataset_file,
     library_versions,
     read_json,
     shard_is_complete,
@@ -109,8 +111,9 @@ def generate(
     with a line about a first run's kernel compilation (before and after it).
 
     Raises:
-        ProjsynthError: bad options, an ``out`` holding another dataset, another ``gen`` writing some
-            of the same shards (:func:`claim_shards`), or a shard that cannot be written.
+        ProjsynthError: bad options, an ``out`` holding another dataset or files ``gen`` does not
+            write, another ``gen`` writing some of the same shards (:func:`claim_shards`), or a shard
+            that cannot be written.
     """
     if shard_size < 1:
         raise ProjsynthError(f"--shard-size: must be >= 1, got {shard_size}")
@@ -170,6 +173,7 @@ def merge(out: Path) -> dict:
 
 
 def _prepare_dir(out: Path, info: dict) -> None:
+    refuse_foreign_files(out, is_dataset_file, "projsynth gen")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -10,6 +10,7 @@ import errno
 import io
 import json
 import os
+import re
 import threading
 import zlib
 from pathlib import Path
@@ -36,6 +37,15 @@ _DAMAGED_CHUNK = "damaged: a chunk fails its Fletcher-32 checksum or does not de
 
 def shard_name(index: int) -> str:
     return f"shard-{index:05d}.h5"
+
+
+_SHARD_FILE = re.compile(r"shard-\d{5,}\.h5(\.tmp)?")  # a shard, or the temporary of one being written
+
+
+def is_dataset_file(name: str) -> bool:
+    """Whether ``name`` is one a dataset directory holds: the plan, the manifest, a shard, or the
+    temporary a killed run left of a shard."""
+    return name in (PLAN_FILE, MANIFEST) or _SHARD_FILE.fullmatch(name) is not None
 
 
 def write_json_atomic(path: Path, data: dict) -> None:

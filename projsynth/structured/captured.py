@@ -16,7 +16,6 @@ training read it like a generated one. What differs:
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ from ..dataset.shards import (
     PLAN_FILE,
     assemble_manifest,
     library_versions,
+    read_json,
     shard_name,
     write_json_atomic,
     write_shard,
@@ -88,7 +88,7 @@ def captured_samples(
     return samples
 
 
-def write_captured_dataset(
+def require_captured_out(
     out: Path,
     patterns: PatternSet,
     patterns_dir: Path | None,
@@ -96,11 +96,12 @@ def write_captured_dataset(
     samples: list[Sample],
     camera_size: tuple[int, int],
 ) -> dict:
-    """Write ``samples`` as a one-shard dataset under ``out``; returns the manifest.
+    """The plan (``dataset.json``) of the dataset :func:`write_captured_dataset` writes, once ``out`` is
+    found free for it: new, or holding this very dataset (the same config hash). Writes nothing, so that
+    ``decode`` refuses before it touches its earlier output.
 
-    ``patterns_dir`` None: the photos are in another tool's layout (``opencv-graycode``), with no
-    ``patterns.json`` to hash. Re-running with the same inputs rewrites the same content; ``out``
-    holding another dataset (a ``dataset.json`` with another config hash) is refused.
+    Raises:
+        ProjsynthError: ``out`` holds another dataset, an unreadable plan, or shards without a plan.
     """
     capture = {
         "patterns_kind": patterns.kind,
@@ -124,16 +125,34 @@ def write_captured_dataset(
     info["config_hash"] = plan_hash(info)
     info.update(shard_size=len(samples), num_shards=1, skipped_sources=[])
     plan_path = Path(out) / PLAN_FILE
+    if plan_path.exists():
+        if read_json(plan_path, "plan").get("config_hash") != info["config_hash"]:
+            raise ProjsynthError(f"--out {out}: holds another dataset (see {plan_path}); use a new --out")
+    elif (Path(out) / MANIFEST).exists() or any(Path(out).glob("shard-*.h5")):
+        raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
+    return info
+
+
+def write_captured_dataset(
+    out: Path,
+    patterns: PatternSet,
+    patterns_dir: Path | None,
+    photos: list[Path],
+    samples: list[Sample],
+    camera_size: tuple[int, int],
+) -> dict:
+    """Write ``samples`` as a one-shard dataset under ``out``; returns the manifest.
+
+    ``patterns_dir`` None: the photos are in another tool's layout (``opencv-graycode``), with no
+    ``patterns.json`` to hash. Re-running with the same inputs rewrites the same content; ``out``
+    holding another dataset is refused (:func:`require_captured_out`).
+    """
+    info = require_captured_out(out, patterns, patterns_dir, photos, samples, camera_size)
+    plan_path = Path(out) / PLAN_FILE
     try:
         Path(out).mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ProjsynthError(f"--out {out}: cannot create directory ({e.strerror}); choose a writable path") from e
-    if plan_path.exists():
-        old = json.loads(plan_path.read_text())
-        if old.get("config_hash") != info["config_hash"]:
-            raise ProjsynthError(f"--out {out}: holds another dataset (see {plan_path}); use a new --out")
-    elif (Path(out) / MANIFEST).exists() or any(Path(out).glob("shard-*.h5")):
-        raise ProjsynthError(f"--out {out}: holds shards without {PLAN_FILE}; use an empty directory")
     write_json_atomic(plan_path, info)
     attrs = {
         "format_version": FORMAT_VERSION,

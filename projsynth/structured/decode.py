@@ -35,12 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.shards import is_dataset_file
 from ..errors import ProjsynthError
 from ..flow.formats import encode_flow_exr
 from ..utils.files import remove_stale_temporaries, write_atomic_all
 from ..utils.images import IMAGE_EXTENSIONS, load_gray
-from ..utils.outputs import folder_files, refuse_overwriting_inputs
-from .captured import captured_samples, write_captured_dataset
+from ..utils.outputs import folder_files, refuse_foreign_files, refuse_overwriting_inputs
+from .captured import captured_samples, require_captured_out, write_captured_dataset
 from .dots import decode_dots
 from .edges import decode_edges, window_noise
 from .graybits import bits_agree, gray_stripe
@@ -192,6 +193,7 @@ def decode_folder(
     inputs += folder_files("--patterns", Path(patterns_dir)) if patterns_dir is not None else []
     inputs += [(option, Path(p)) for pair in pairs for option, p in zip(("--pair", "--pair"), pair, strict=True)]
     refuse_overwriting_inputs([("--out", out)], inputs)
+    refuse_foreign_files(out, _decode_owns, "projsynth decode", marks=(CORRESPONDENCE_FILE, DECODE_FILE))
     if projector is None:
         photos, files = load_captures(patterns, captures)
     else:
@@ -202,6 +204,8 @@ def decode_folder(
     require_decoded(result, patterns, photos, f"--captures {captures}")
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
+    if samples:  # refused before the earlier decode there is touched
+        require_captured_out(out, patterns, patterns_dir, files, samples, camera_size)
     record = {
         "patterns": None if patterns_dir is None else str(patterns_dir),
         "layout": layout,
@@ -231,6 +235,12 @@ def decode_folder(
         else (f"{result.valid.mean():.1%} of projector pixels")
     )
     return f"{what} decoded into {CORRESPONDENCE_FILE}" + (f"; dataset of {len(samples)} pairs" if samples else "")
+
+
+def _decode_owns(name: str) -> bool:
+    """Whether ``name`` is one ``decode`` writes in ``--out``: the correspondence, its record, and the
+    dataset of ``--pair``."""
+    return name in (CORRESPONDENCE_FILE, DECODE_FILE) or is_dataset_file(name)
 
 
 def _check_layout(layout: str, patterns_dir: Path | None, projector: tuple[int, int] | None) -> None:

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from projreg import ProjregError
-from projreg.api import Registrar, compensate, end_point_error
+from projreg.api import Registrar, compensate, end_point_error, export_warp
 from projreg.cli import app
 from projreg.inference.compensate import compensate as compensate_arrays
 from projreg.inference.photos import normalise_capture
@@ -192,6 +192,9 @@ def test_bad_batches_frames_and_options_are_one_line_naming_the_argument(pairs, 
         (lambda: registrar.live(-1, img0), r"^captured -1: a camera index is in 0..9999"),  # crashed OpenCV
         (lambda: registrar.live(99_999_999_999, img0), r"^captured 99999999999: a camera index is in 0..9999"),
         (lambda: registrar.live("", img0), r"^captured: empty"),
+        (lambda: Registrar(""), r"^model: empty; give a path"),  # not the current folder
+        (lambda: registrar.register(img0, img1, response=""), r"^response: empty; give a path"),
+        (lambda: export_warp("", "warp.exr"), r"^source: empty; give a path"),
         (lambda: registrar.live(0, img0.astype(np.float32)), r"^content: expected a uint8 RGB array"),
         (  # 0 is a value, not "unset": refused, not read as the default 2.2
             lambda: compensate(img1, registration, white=img1, black=img1 // 4, gamma=0),

@@ -132,3 +132,5 @@ def test_a_dataset_takes_integers_and_slices_and_refuses_other_keys(tmp_path):
             data[len(data)]
     with pytest.raises(TypeError, match="path: expected a dataset directory"):
         open_dataset(None)
+    with pytest.raises(ProjsynthError, match="^path: empty; give a dataset directory$"):
+        open_dataset("")  # not the current folder

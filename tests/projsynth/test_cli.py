@@ -5,6 +5,8 @@ import re
 import shutil
 import subprocess
 import sys
+import typing
+from pathlib import Path
 
 import pytest
 import typer
@@ -111,6 +113,29 @@ def test_gen_refuses_shards_without_a_plan(cli, planar_ds, copy_dataset):
     root = copy_dataset(planar_ds)
     (root / "dataset.json").unlink()
     cli.assert_one_line_error(cli.run("gen", "--out", root, *cli.PLANAR, "--shard-size", "8"), "--out")
+
+
+def test_gen_refuses_a_folder_of_other_files_and_resumes_its_own(cli, tmp_path):
+    tiny = ["--pairs", "1", "--size", "48x64", "--transforms", "0", "--shard-size", "1", "-q"]
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("IMG_0001.jpg", "notes.txt"):
+        (photos / name).write_bytes(b"someone's file")
+    line = cli.assert_one_line_error(cli.run("gen", "--out", photos, *tiny), f"--out {photos}: holds 2 file(s)")
+    assert "(e.g. IMG_0001.jpg)" in line and "choose a new or empty folder" in line
+    assert sorted(p.name for p in photos.iterdir()) == ["IMG_0001.jpg", "notes.txt"]
+    assert (photos / "notes.txt").read_bytes() == b"someone's file"
+    hidden = tmp_path / "hidden"  # names beginning with a dot, which file managers hide, are not counted
+    hidden.mkdir()
+    (hidden / ".DS_Store").write_bytes(b"finder")
+    assert cli.run("gen", "--out", hidden, *tiny).exit_code == 0
+    (hidden / "shard-00001.h5").unlink()  # an interrupted run: one shard and the manifest missing
+    (hidden / "manifest.json").unlink()
+    (hidden / "shard-00001.h5.tmp").write_bytes(b"\x89HDF partial")
+    result = cli.run("gen", "--out", hidden, *tiny[:-1])
+    assert result.exit_code == 0, result.stderr
+    assert cli.summary(result) == (1, 1, 2)
+    assert (hidden / ".DS_Store").read_bytes() == b"finder"
 
 
 def test_type_errors_exit_2(cli, tmp_path):
@@ -258,6 +283,45 @@ def test_a_dataset_from_another_generator_version_is_named_not_resumed(cli, plan
     )
 
 
+# --- empty paths ------------------------------------------------------------------------------------
+
+
+def _is_path(annotation: object) -> bool:
+    return annotation is Path or any(_is_path(a) for a in typing.get_args(annotation))
+
+
+def path_params(application: typer.Typer) -> list[tuple[str, str]]:
+    """``(command, option)`` of every option or argument typed as a path (an argument as its metavar)."""
+    found = []
+    for name, command in typer.main.get_command(application).commands.items():
+        hints = typing.get_type_hints(command.callback, include_extras=True)
+        for param in command.params:
+            if _is_path(hints.get(param.name)):
+                found.append((name, param.opts[0] if param.param_type_name == "option" else param.metavar))
+    return found
+
+
+PATH_PARAMS = path_params(app)
+
+
+@pytest.mark.parametrize(("command", "option"), PATH_PARAMS, ids=[" ".join(p) for p in PATH_PARAMS])
+def test_an_empty_path_is_refused_naming_its_option(cli, tmp_path, monkeypatch, command, option):
+    """``''`` (an unset shell variable) is refused, not read as the current folder and blamed on its files."""
+    assert len(PATH_PARAMS) >= 20  # the annotations are read: none missed by a change in typer
+    monkeypatch.chdir(tmp_path)
+    result = cli.run(command, *([""] if option == "DIR" else [option, ""]))
+    assert result.exit_code == 2 and f"Invalid value for '{option}': empty; give" in result.stderr, result.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_empty_pair_is_refused(cli, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for pair in (["", "photo.png"], ["picture.png", " "]):
+        result = cli.run("decode", "--captures", "photos", "--out", "o", "--patterns", "pat", "--pair", *pair)
+        cli.assert_one_line_error(result, "--pair: empty; give the paths of a picture and of its photo")
+    assert not list(tmp_path.iterdir())
+
+
 # --- usage errors through the console entry points --------------------------------------------------
 
 USAGE_ERRORS = [
@@ -271,6 +335,13 @@ USAGE_ERRORS = [
         "projreg train --help",
     ),
     ("projreg", ["predict", "--max-side", "abc"], "Invalid value for '--max-side'", "projreg predict --help"),
+    ("projsynth", ["verify", ""], "Invalid value for 'DIR': empty; give the path to read", "projsynth verify --help"),
+    (
+        "projsynth",
+        ["decode", "--captures", ""],
+        "Invalid value for '--captures': empty; give the path to read",
+        "projsynth decode --help",
+    ),
 ]
 
 

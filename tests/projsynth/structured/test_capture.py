@@ -180,3 +180,41 @@ def test_bad_photos_are_one_clear_error(rig_run, cli, tmp_path, damage):
     result = cli.run("decode", "--patterns", rig_run / "pat", "--captures", photos, "--out", tmp_path / "o", *extra)
     cli.assert_one_line_error(result, needle)
     assert not (tmp_path / "o" / "manifest.json").exists()
+
+
+def test_decode_refuses_a_folder_of_other_files_and_rewrites_its_own(rig_run, cli, tmp_path):
+    decode = ["decode", "--patterns", rig_run / "pat", "--captures", rig_run / "photos", "--out"]
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "notes.txt").write_text("the rig's settings")
+    line = cli.assert_one_line_error(cli.run(*decode, notes), f"--out {notes}: holds 1 file(s)", "(e.g. notes.txt)")
+    assert "not written by `projsynth decode`" in line and "choose a new or empty folder" in line
+    dataset = tmp_path / "dataset"  # a `gen` dataset: names decode writes with --pair, but not its output
+    dataset.mkdir()
+    for name in ("dataset.json", "manifest.json", "shard-00000.h5"):
+        (dataset / name).write_text("{}")
+    cli.assert_one_line_error(cli.run(*decode, dataset), f"--out {dataset}: holds 3 file(s)", "(e.g. dataset.json)")
+    for folder, names in ((notes, ["notes.txt"]), (dataset, ["dataset.json", "manifest.json", "shard-00000.h5"])):
+        assert sorted(p.name for p in folder.iterdir()) == names
+    out = tmp_path / "out"  # names beginning with a dot, which file managers hide, are not counted
+    out.mkdir()
+    (out / ".DS_Store").write_bytes(b"finder")
+    assert cli.run(*decode, out).exit_code == 0
+    first = (out / "correspondence.exr").read_bytes()
+    result = cli.run(*decode, out)  # its own earlier output: decoded again
+    assert result.exit_code == 0, result.stderr
+    assert (out / "correspondence.exr").read_bytes() == first
+    assert sorted(p.name for p in out.iterdir()) == [".DS_Store", "correspondence.exr", "decode.json"]
+
+
+def test_decode_refuses_another_dataset_before_touching_its_earlier_output(rig_run, cli, tmp_path):
+    out = tmp_path / "real"
+    decode = ["decode", "--patterns", rig_run / "pat", "--captures", rig_run / "photos", "--out", out, "--pair"]
+    content = rig_run / "cap" / "content"
+    assert cli.run(*decode, content / "picture-projected.png", content / "picture.png").exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    other = [rig_run / "pat" / "00-white.png", rig_run / "photos" / "00-white.png"]
+    cli.assert_one_line_error(cli.run(*decode, *other), f"--out {out}: holds another dataset")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # decode.json kept: still a finished decode
+    (out / "dataset.json").write_text("[1]")
+    cli.assert_one_line_error(cli.run(*decode, *other), f"{out / 'dataset.json'}: not a plan")
