@@ -156,19 +156,22 @@ def _ratio(xx: np.ndarray, xy: np.ndarray, yy: np.ndarray) -> np.ndarray:
 
 def pinned(
     ratio: np.ndarray,
-    weight: np.ndarray,
+    texture: np.ndarray,
+    passed: np.ndarray,
     flow: np.ndarray,
     radius: float,
     cfg: ConfidenceConfig,
     scale: float = 1.0,
 ) -> np.ndarray:
     """Where the passing texture near a pixel fixes its position on a bent surface, in [0, 1]: the share of
-    the passing texture ``weight`` (texture times pass mark, float ``(H, W)``) whose own check window fixes a
-    position in both directions (``ratio``: the :func:`eigen_ratio` of the projected image over one window,
-    ramped from ``cfg.pin_fail`` to ``cfg.pin_pass``: a corner, a blob, a letter; not a curve), averaged
-    within the ``flow``'s reach (:func:`reach`), ramped from 0 to ``cfg.pin_share``; 1 where the reach is
-    ``cfg.span_radii`` radii or more (a flow that bends that little is :func:`spanned`'s to judge, over
-    that reach).
+    the passing texture (``texture`` times the pass marks ``passed``, float ``(H, W)`` each,
+    :func:`pixel_confidence`'s) whose own check window fixes a position in both directions (``ratio``: the
+    :func:`eigen_ratio` of the projected image over one window, ramped from ``cfg.pin_fail`` to
+    ``cfg.pin_pass``: a corner, a blob, a letter; not a curve), averaged within the ``flow``'s reach
+    (:func:`reach`), ramped from 0 to ``cfg.pin_share``; 1 where the reach is ``cfg.span_radii`` radii or
+    more (a flow that bends that little is :func:`spanned`'s to judge, over that reach). Times, where the
+    reach is under two radii, the share of the pixel's confidence that does not rest on the coarse
+    neighbourhood beyond it (:func:`_within_reach`).
 
     A curve alone fixes the position along itself only through the surface model's coupling to texture
     elsewhere, which holds while the surface between is near affine. Where the answer bends, that coupling
@@ -177,25 +180,45 @@ def pinned(
     directions span both). ``scale``: the user's pixels per pixel of the grid (the bend tolerance is
     ``cfg.pin_bend_px`` of the user's). Every map here is smooth at a radius: it is computed on the grid
     shrunk ``radius // cfg.shrunk_sigma`` times (twice at least) and brought back bilinearly."""
-    h, w = weight.shape
+    h, w = texture.shape
+    weight = np.asarray(texture * passed, np.float32)
     f = max(2, int(radius // cfg.shrunk_sigma))  # a radius is 3 px or more on that grid
     small = (max(1, w // f), max(1, h // f))
-    texture = cv2.resize(np.asarray(weight, np.float32), small, interpolation=cv2.INTER_AREA)
-    corner = cv2.resize(
-        np.asarray(weight * ramp(ratio, cfg.pin_fail, cfg.pin_pass), np.float32), small, interpolation=cv2.INTER_AREA
-    )
-    near = reach(flow, texture, radius, cfg, scale, f) / radius  # in radii
+    seen = cv2.resize(weight, small, interpolation=cv2.INTER_AREA)
+    corner = cv2.resize(weight * ramp(ratio, cfg.pin_fail, cfg.pin_pass), small, interpolation=cv2.INTER_AREA)
+    near = reach(flow, seen, radius, cfg, scale, f) / radius  # in radii
     if near.min() >= cfg.span_radii:  # nowhere bent: the span test's to judge everywhere
         return np.ones((h, w), np.float32)
     at = np.log2(np.clip(near, 1.0, cfg.span_radii))
     levels = [r for r in (1.0, 2.0, 4.0) if r < cfg.span_radii] + [cfg.span_radii]  # radii, each twice the last
-    shares = [gaussian(corner, r * radius / f) / np.maximum(gaussian(texture, r * radius / f), 1e-6) for r in levels]
+    shares = [gaussian(corner, r * radius / f) / np.maximum(gaussian(seen, r * radius / f), 1e-6) for r in levels]
     marks, out = np.log2(levels), shares[0]
     for k in range(1, len(levels)):  # the share at the reach, between the levels on a log scale
         t = np.clip((at - marks[k - 1]) / (marks[k] - marks[k - 1]), 0.0, 1.0)
         out = np.where(at > marks[k - 1], (1 - t) * shares[k - 1] + t * shares[k], out)
     out = np.where(near >= cfg.span_radii, 1.0, ramp(out, 0.0, cfg.pin_share)).astype(np.float32)
-    return cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
+    out = cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
+    if near.min() < 2.0:
+        out = out * _within_reach(
+            texture, passed, cv2.resize(near, (w, h), interpolation=cv2.INTER_LINEAR), radius, cfg
+        )
+    return out
+
+
+def _within_reach(
+    texture: np.ndarray, passed: np.ndarray, near: np.ndarray, radius: float, cfg: ConfidenceConfig
+) -> np.ndarray:
+    """The share of :func:`pixel_confidence`'s neighbourhood verdict (the larger of the fine and the coarse
+    neighbourhood) left when the coarse one counts only as far as the answer's reach ``near`` (radii, float
+    ``(H, W)``) allows: fully from two radii (its own sigma), not at all at one. The coarse neighbourhood
+    carries the verdict across a flat gap, which the surface model interpolates: on a surface that bends
+    within that gap, the interpolation is a guess."""
+    texture = np.asarray(texture, np.float32)
+    fine = neighbourhood(texture, passed, radius, cfg.sparse, cfg.dense, cfg.shrunk_sigma)
+    coarse = neighbourhood(texture, passed, 2 * radius, cfg.coarse_sparse, cfg.dense, cfg.shrunk_sigma)
+    either = np.maximum(fine, coarse)
+    kept = np.maximum(fine, coarse * ramp(near, 1.0, 2.0))
+    return np.where(either > 0, kept / np.maximum(either, 1e-6), 1.0).astype(np.float32)
 
 
 def reach(

@@ -47,7 +47,7 @@ def pinned(
         products = [side.tensor[..., k] for k in range(3)]
         side.corners = eigen_ratio(products, ctx.config.selection.ncc_sigma, ctx.config.images.shrunk_sigma)
     passed = pass_marks(*checks(ctx, cands, scores, best, dis), cfg)
-    return pinned_by(side.corners, ctx.evidence * passed, best.flow, cfg.radius * max(ctx.shape), cfg, ctx.scale)
+    return pinned_by(side.corners, ctx.evidence, passed, best.flow, cfg.radius * max(ctx.shape), cfg, ctx.scale)
 
 
 def checks(

@@ -70,7 +70,7 @@ def _pin(image: np.ndarray, flow: np.ndarray, radius: float = 12.0) -> np.ndarra
     gx, gy = cv2.Scharr(gray, cv2.CV_32F, 1, 0), cv2.Scharr(gray, cv2.CV_32F, 0, 1)
     ratio = eigen_ratio([gx * gx, gx * gy, gy * gy], 7.0, 3.5)
     texture = np.minimum(cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), 3) / 1e5, 1.0)
-    return pinned(ratio, texture, flow, radius, ConfidenceConfig())
+    return pinned(ratio, texture, np.ones_like(texture), flow, radius, ConfidenceConfig())
 
 
 def test_a_curve_alone_pins_nothing_where_the_surface_bends_and_a_corner_does():
@@ -92,3 +92,26 @@ def test_a_curve_alone_pins_nothing_where_the_surface_bends_and_a_corner_does():
     assert _pin(circles, bumps)[on].mean() < 0.1
     assert _pin(circles, plane)[on].min() == 1.0
     assert _pin(grid, bumps)[grid > 64].min() == 1.0
+
+
+def test_where_the_surface_bends_the_claim_reaches_less_far_into_a_flat_gap():
+    """The coarse neighbourhood carries a verdict across a flat gap that the surface model interpolates;
+    where the answer bends within a radius or two, that interpolation is a guess: the claim reaches into
+    the flat half of the frame only as far as the fine neighbourhood carries it (on a plane, farther)."""
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    grid = np.zeros((h, w), np.uint8)
+    grid[::24, :160] = 255
+    grid[:, :160:24] = 255
+    grid = cv2.GaussianBlur(grid, (0, 0), 1.0)
+    gray = grid.astype(np.float32)
+    gx, gy = cv2.Scharr(gray, cv2.CV_32F, 1, 0), cv2.Scharr(gray, cv2.CV_32F, 0, 1)
+    texture = np.minimum(cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), 3) / 1e5, 1.0)
+    zero = np.zeros_like(texture)
+    conf = pixel_confidence(texture, np.ones_like(texture), zero, zero, 12.0, ConfidenceConfig())
+    bumps = np.dstack([4 * np.sin(xx / 25) * np.sin(yy / 25), 4 * np.cos(xx / 25) * np.sin(yy / 30)])
+    plane = np.dstack([0.05 * xx + 3, -0.02 * yy + 1])
+    bent, flat = (conf * _pin(grid, flow) >= CONFIDENT for flow in (bumps, plane))
+    assert bent[:, :150].all() and flat[:, :150].all()  # the grid: its crossings pin it
+    reach_bent, reach_flat = (int(np.flatnonzero(c[120]).max()) for c in (bent, flat))
+    assert 160 < reach_bent <= reach_flat - 8  # past the texture, less far than on a plane
