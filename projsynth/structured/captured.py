@@ -140,14 +140,17 @@ def write_captured_dataset(
     photos: list[Path],
     samples: list[Sample],
     camera_size: tuple[int, int],
+    plan: dict | None = None,
 ) -> dict:
     """Write ``samples`` as a one-shard dataset under ``out``; returns the manifest.
 
     ``patterns_dir`` None: the photos are in another tool's layout (``opencv-graycode``), with no
     ``patterns.json`` to hash. Re-running with the same inputs rewrites the same content; ``out``
-    holding another dataset is refused (:func:`require_captured_out`).
+    holding another dataset is refused (:func:`require_captured_out`). ``plan``: what
+    :func:`require_captured_out` returned for these arguments, where the caller checked ``out`` first
+    (the photos are not hashed again).
     """
-    info = require_captured_out(out, patterns, patterns_dir, photos, samples, camera_size)
+    info = plan or require_captured_out(out, patterns, patterns_dir, photos, samples, camera_size)
     plan_path = Path(out) / PLAN_FILE
     try:
         Path(out).mkdir(parents=True, exist_ok=True)

@@ -204,8 +204,8 @@ def decode_folder(
     require_decoded(result, patterns, photos, f"--captures {captures}")
     camera_size = photos.shape[1:]
     samples = captured_samples(pairs, result.flow, result.valid, camera_size) if pairs else []
-    if samples:  # refused before the earlier decode there is touched
-        require_captured_out(out, patterns, patterns_dir, files, samples, camera_size)
+    # refused before the earlier decode there is touched
+    plan = require_captured_out(out, patterns, patterns_dir, files, samples, camera_size) if samples else None
     record = {
         "patterns": None if patterns_dir is None else str(patterns_dir),
         "layout": layout,
@@ -225,7 +225,7 @@ def decode_folder(
         [(out / CORRESPONDENCE_FILE, encode_flow_exr(result.flow, result.valid, "correspondence"))], make_parents=True
     )
     if samples:
-        write_captured_dataset(out, patterns, patterns_dir, files, samples, camera_size)
+        write_captured_dataset(out, patterns, patterns_dir, files, samples, camera_size, plan)
         record["dataset_pairs"] = len(samples)
     write_atomic_all([(out / DECODE_FILE, (json.dumps(record, indent=1) + "\n").encode())])
     remove_stale_temporaries(out, [CORRESPONDENCE_FILE, DECODE_FILE])

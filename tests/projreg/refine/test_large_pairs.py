@@ -31,8 +31,9 @@ def test_a_large_pair_is_searched_shrunk_and_verified_at_its_own_size(pictures):
     full = GeometricRefiner(FULL).predict(img0, img1, net)
     claimed = [np.linalg.norm(p.flow - gt, axis=-1)[p.claimed & valid].mean() for p in (pred, full)]
     shares = [(p.claimed & valid).mean() for p in (pred, full)]
-    assert pred.registered and claimed[0] < 1.0 and claimed[0] < claimed[1] + 0.1, claimed
-    assert shares[0] > 0.8 and shares[0] > shares[1] - 0.02, shares  # flat gaps beyond the bend's reach unclaimed
+    # flat gaps beyond the bend's reach are not claimed: 86 % of the frame at 0.69 px (96 % at 0.78 without it)
+    assert pred.registered and claimed[0] < 0.75 and claimed[0] < claimed[1] + 0.1, claimed
+    assert shares[0] > 0.8 and shares[0] > shares[1] - 0.02, shares
 
 
 def test_a_photo_of_another_picture_is_refused_at_full_size(pictures):
