@@ -36,7 +36,7 @@ from ..errors import ProjregError
 from ..geometry.homography import SiftHomography, homography_flow
 from ..geometry.images import to_gray
 from ..prediction import Prediction
-from ..refine.config import ACCURATE
+from ..refine.config import SEARCH
 from ..refine.refiner import GeometricRefiner
 
 
@@ -126,12 +126,12 @@ class SiftRansac(_OpenCVBaseline):
         return np.zeros((h, w, 2), np.float32) if H is None else homography_flow(H, h, w)
 
 
-_WITHOUT_SIFT = ACCURATE.with_sections(search={"sift": False})
+_WITHOUT_SIFT = SEARCH.with_sections(search={"sift": False})
 
 
 class RefineOnly:
-    """The refinement started without the network: from the identity and from a SIFT homography (the
-    ``accurate`` quality's search, whose own SIFT start would repeat this one)."""
+    """The refinement started without the network: from the identity and from a SIFT homography (the full
+    one-stage search, :data:`~projreg.refine.config.SEARCH`, whose own SIFT start would repeat this one)."""
 
     name = "refine-only"
 

@@ -22,7 +22,8 @@ class ImagesConfig:
     """The views of the pair the residuals are measured on and the evidence read from them."""
 
     max_side: int | None = None  # refine the pair shrunk to this longer side (None: its own size) ...
-    verify_full: bool = False  # ... and verify the answer at the pair's own size (else: its confidence resized)
+    verify_full: bool = False  # ... and verify the answer at the pair's own size (else: its confidence resized) ...
+    verify_full_below: float = 0.0  # ... or verify it there only when it claims less than this share of the frame
     contrast_sigma: float = 8.0  # Gaussian window (px) of the local contrast normalisation
     shrunk_sigma: float = 3.5  # local statistics (contrast, NCC) of a window sigma >= twice this (px) are
     # taken on the images shrunk sigma // this times (geometry.images.gaussian)
@@ -112,6 +113,8 @@ class SearchConfig:
     # pixels (1.0: always, every start and view in one stage)
     settle_at: float = 1.0  # with align.direct, a first stage claiming at least this share of the visible
     # texture is final: no growth, and no re-alignment unless its winner was polished
+    keep_direct_at: float = 1.0  # with align.direct, an escalation keeps the first stage's aligned candidates as
+    # rivals of DIS's where they claimed at least this share of the visible texture (else they are dropped)
     grow: bool = True  # a partial answer's verified plane starts one more hypothesis
     grow_below: float = 0.8  # ... when the answer claims less than this share of the frame
     workers: int = 2  # threads refining a stage's candidates side by side (OpenCV and numpy release the GIL)
@@ -243,7 +246,9 @@ class RefineConfig:
             raise ProjregError(f"refine images.max_side must be >= {MIN_SIDE}, got {im.max_side}")
         if im.albedo and (im.albedo_window < 3 or im.albedo_window % 2 == 0):
             raise ProjregError(f"refine images.albedo_window must be an odd number >= 3, got {im.albedo_window}")
-        for name in ("grow_below", "escalate_below", "settle_at"):
+        if not 0 <= im.verify_full_below <= 1:
+            raise ProjregError(f"refine images.verify_full_below must be in [0, 1], got {im.verify_full_below}")
+        for name in ("grow_below", "escalate_below", "settle_at", "keep_direct_at"):
             if not 0 <= getattr(se, name) <= 1:
                 raise ProjregError(f"refine search.{name} must be in [0, 1], got {getattr(se, name)}")
         if se.sift_side is not None and se.sift_side < MIN_SIDE:
@@ -310,14 +315,18 @@ class Quality:
 # rest, and it is re-aligned, below 85 %); a pair larger than 512 px is searched shrunk to 512 px and
 # its answer verified at its own size (the estimator's cost grows with the pixels, the network's with
 # their square).
-# ``accurate``: every start on every view, the network at up to 1024 px, the winner re-aligned
-# directly. ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
+# ``accurate``: ``balanced``'s first stage, then always the network again at up to 1024 px and every start
+# on every view from it, the first stage's aligned answers kept beside DIS's where they verified what would
+# have stopped ``balanced`` (half the visible texture), the winner re-aligned directly, every pair searched
+# at its own size (docs/history/2026-12-05-accurate-and-fast-claims.md).
+# ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
 # the fit's pixel parameters halved, no detail level, albedo view or bridge, and the residual's pass marks
 # halved (1 px passes, 2 px fails: its smaller search leaves pixels 2-3 px off that pass the default's
-# marks; docs/history/2026-12-05-honest-claims.md). Their
-# figures: docs/results.md.
-ACCURATE = RefineConfig()
-BALANCED = ACCURATE.with_sections(
+# marks; docs/history/2026-12-05-honest-claims.md); an answer claiming under half the frame is verified
+# again at the pair's own size (a small claim's evidence, checked at 256 px, let pixels 1.5-1.7 px off pass).
+# Their figures: docs/results.md.
+SEARCH = RefineConfig()  # every start on every view in one stage (the settings' defaults)
+BALANCED = SEARCH.with_sections(
     images={"max_side": 512, "verify_full": True},
     align={
         "direct": True,
@@ -330,13 +339,17 @@ BALANCED = ACCURATE.with_sections(
     search={"escalate_below": 0.5, "settle_at": 0.85},
 )
 FAST = RefineConfig(
-    images=ImagesConfig(max_side=256, plain=False, albedo=False),
+    images=ImagesConfig(max_side=256, verify_full_below=0.5, plain=False, albedo=False),
     align=AlignConfig(direct=True, realign=False, detail=False, polish=()),
     fit=FitConfig(ransac_px=1.0, refit_px=0.5, fit_points=3072),
     surface=SurfaceConfig(robust_px=0.5, free_px=8.0, detail=False),
     search=SearchConfig(identity=False, sift=False, escalate_below=0.0),
     selection=SelectionConfig(ncc_sigma=3.5),
     confidence=ConfidenceConfig(bridge=False, residual_pass_px=1.0, residual_fail_px=2.0),
+)
+ACCURATE = BALANCED.with_sections(
+    images={"max_side": None, "verify_full": False},
+    search={"escalate_below": 1.0, "settle_at": 1.0, "keep_direct_at": BALANCED.search.escalate_below},
 )
 QUALITIES = {
     q.name: q
@@ -350,7 +363,14 @@ QUALITIES = {
             "searched at up to 512 px, verified at the pair's size",
             escalate_side=512,
         ),
-        Quality("accurate", 1024, ACCURATE, "the network at up to 1024 px, every start on every view, re-aligned"),
+        Quality(
+            "accurate",
+            256,
+            ACCURATE,
+            "balanced's first stage, then the network at up to 1024 px and every start on every view beside it, "
+            "re-aligned",
+            escalate_side=1024,
+        ),
     )
 }
 DEFAULT_QUALITY = "balanced"

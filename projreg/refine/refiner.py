@@ -26,8 +26,9 @@ reads as the algorithm:
    otherwise they are not tried. With ``align.direct`` (``balanced``, the default) the first stage aligns
    the network's start directly and polishes it with DIS (:func:`~projreg.refine.candidates.align_view`,
    :func:`~projreg.refine.candidates.polish`);
-   an escalation drops those candidates, and may restart from the network's flow at a finer resolution
-   (``finer``) with DIS on every view.
+   an escalation drops those candidates unless they claimed ``keep_direct_at`` of the texture (``accurate``
+   escalates always and keeps them where ``balanced`` would have stopped), and may restart from the
+   network's flow at a finer resolution (``finer``) with DIS on every view.
 7. **Extend**: a partial answer's verified plane starts one more hypothesis (``grown``); a registered
    answer also claims wide flat gaps where its plane agrees with it (the bridge).
 8. **Re-align**: a DIS-refined winner aligned to the images directly from its own smooth surface, the
@@ -45,8 +46,9 @@ reads as the algorithm:
    window (:func:`~projreg.refine.verify.pinned`): a curve alone slides along itself.
 
 A pair longer than ``images.max_side`` runs stages 1-8 shrunk to it; with ``images.verify_full``
-(``balanced``: 512 px) the candidates are then resized to the pair's own grid and the winner verified
-there (stage 5 again, at full resolution) before the verdict.
+(``balanced``: 512 px), or where the winner claims less than ``images.verify_full_below`` of the frame
+(``fast``: half), the candidates are then resized to the pair's own grid and the winner verified there
+(stage 5 again, at full resolution) before the verdict.
 
 docs/model.md describes each stage, its parameters (:mod:`~projreg.refine.config`) and what it is for.
 
@@ -227,8 +229,9 @@ class GeometricRefiner:
             refining = submit(ctx, self._workers, first, rest)
             second = found.result() if found else []
             refining_second = submit(ctx, self._workers, second, views)  # queued before the first are gathered
-            if direct:  # an aligned answer that did not verify the frame is not kept as a rival of DIS's
-                search.cands, direct = [], False
+            if direct and claimed < cfg.search.keep_direct_at:  # an aligned answer that did not verify the frame
+                search.cands = []  # is not kept as a rival of DIS's
+            direct = False
             search.cands += gather(ctx, first, refining) + gather(ctx, second, refining_second)
             search.stages.append("more starts")
             self._reselect(search)
@@ -416,20 +419,29 @@ class GeometricRefiner:
         """:meth:`predict_info` on the pair shrunk to ``images.max_side``; flow and confidence resized back
         (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``, its checks'
         distances read in the pair's own pixels (:func:`~projreg.refine.verify.checks`). With
-        ``images.verify_full`` the search's answer is verified again at the pair's own size instead
-        (:meth:`_at_full_size`): its confidence and claim are the full-size checks'."""
-        side = self.config.images.max_side
-        small0, small1 = shrink(projected, side), shrink(captured, side)
+        ``images.verify_full``, or where the answer claims less than ``images.verify_full_below`` of the frame,
+        the search's answer is verified again at the pair's own size instead (:meth:`_at_full_size`): its
+        confidence and claim are the full-size checks'."""
+        images, (h, w) = self.config.images, projected.shape[:2]
+        small0, small1 = shrink(projected, images.max_side), shrink(captured, images.max_side)
         smaller = None if finer is None else lambda: resize_flow(finer(), small0.shape)
-        if self.config.images.verify_full and min(small0.shape[:2]) >= MIN_SIDE:
-            ctx = PairContext.build(small0, small1, self.config, self._projected(small0))
-            if ctx.share >= self.config.images.textureless_below:
-                fitting = self._workers.submit(network_starts, self.config, resize_flow(flow, small0.shape))
-                search = self._search(ctx, small0, small1, fitting, identity, smaller)
-                return self._verdict(self._at_full_size(search, projected, captured))
-        h, w = projected.shape[:2]
-        scale = max(h, w) / max(small0.shape[:2])  # the verdict is read on the shrunk pair: its checks' tolerance
-        pred, info = self._predict_at(small0, small1, resize_flow(flow, small0.shape), identity, smaller, scale)
+        scale = max(h, w) / max(small0.shape[:2])  # a verdict read on the shrunk pair: its checks' tolerance
+        small_flow = resize_flow(flow, small0.shape)
+        searched = None
+        if min(small0.shape[:2]) >= MIN_SIDE:
+            fitting = self._workers.submit(network_starts, self.config, small_flow)  # beside the context
+            side, tolerance = self._projected(small0), 1.0 if images.verify_full else scale
+            ctx = PairContext.build(small0, small1, self.config, side, tolerance)
+            if ctx.share >= images.textureless_below:
+                searched = self._search(ctx, small0, small1, fitting, identity, smaller)
+            else:
+                fitting.cancel()
+        if searched is None:  # too small or textureless: not registered, as the pair shrunk says
+            pred, info = self._predict_at(small0, small1, small_flow, identity, smaller, scale)
+        elif images.verify_full or (searched.conf >= CONFIDENT).mean() < images.verify_full_below:
+            return self._verdict(self._at_full_size(searched, projected, captured))
+        else:
+            pred, info = self._verdict(searched)
         conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
         claimed = (conf >= CONFIDENT) if pred.registered else np.zeros((h, w), bool)
         pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed, confidence=conf)

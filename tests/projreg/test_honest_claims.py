@@ -122,3 +122,22 @@ def test_curves_on_a_bumpy_surface_are_claimed_only_where_something_pins_them(ri
     claimed = reg.claimed & pair.valid
     error = np.linalg.norm(reg.flow - pair.flow, axis=-1)[claimed]
     assert claimed.mean() > 0.05 and error.mean() <= 1.5, (float(claimed.mean()), float(error.mean()))
+
+
+@pytest.mark.parametrize("quality, name", [("accurate", "horse"), ("fast", "text"), ("fast", "astronaut-left")])
+def test_the_striped_sheets_hardest_pictures_claim_only_what_holds(rig, quality, name):
+    """The external rig's stripes run (a sheet bent with a 180-360 px period, painted stripes, a gamma camera,
+    no room light), its pairs where a quality claimed pixels 1.5-1.7 px off on average: `accurate`'s horse,
+    whose DIS-refined answers score above the truth on the stripes (the first stage's aligned answer is now
+    kept beside them), and `fast`'s text and one-sided astronaut, whose small claims at 256 px are now verified
+    at the pair's own size. Whatever is claimed is within 1.5 px on average."""
+    h, w = 384, 512
+    contents = rig.contents(h, w)
+    index = [n for n, _ in contents].index(name)
+    force = {"shape": "bend", "albedo": "stripes", "response": "gamma", "ambient": 0.0}
+    pair = rig.render(name, contents[index][1], index, 2026, force)
+    reg = Registrar(quality=quality).register(pair.projected, pair.captured)
+    claimed = reg.claimed & pair.valid
+    if claimed.any():
+        error = np.linalg.norm(reg.flow - pair.flow, axis=-1)[claimed]
+        assert error.mean() <= 1.5, (quality, name, float(claimed.mean()), float(error.mean()))

@@ -3,7 +3,7 @@
 import pytest
 
 from projreg import ProjregError
-from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, RefineConfig, quality
+from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, SEARCH, RefineConfig, quality
 
 
 @pytest.mark.parametrize(
@@ -17,6 +17,8 @@ from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUA
         ({"search": {"grow_below": 1.5}}, "search.grow_below"),
         ({"search": {"escalate_below": -0.1}}, "search.escalate_below"),
         ({"search": {"settle_at": 1.5}}, "search.settle_at"),
+        ({"search": {"keep_direct_at": -0.5}}, "search.keep_direct_at"),
+        ({"images": {"verify_full_below": 2.0}}, "images.verify_full_below"),
         ({"search": {"workers": 0}}, "search.workers"),
         ({"search": {"sift_side": 16}}, "search.sift_side"),
         ({"selection": {"plane_margin": -0.1}}, "selection.plane_margin"),
@@ -43,7 +45,11 @@ def test_a_bad_value_is_refused_naming_its_section_and_field(sections, message):
 def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
     assert list(QUALITIES) == ["fast", "balanced", "accurate"] and DEFAULT_QUALITY == "balanced"
     assert [q.refine for q in QUALITIES.values()] == [FAST, BALANCED, ACCURATE]
-    assert ACCURATE == RefineConfig()  # the field defaults are the full search
+    assert SEARCH == RefineConfig()  # the field defaults are the full search, in one stage
+    # accurate: balanced's first stage, then always the full search beside it (its candidates kept where
+    # balanced would have stopped), every pair at its own size
+    assert ACCURATE.align == BALANCED.align and ACCURATE.search.escalate_below == 1
+    assert ACCURATE.search.keep_direct_at == BALANCED.search.escalate_below and BALANCED.search.keep_direct_at == 1
     sides = [q.network_side for q in QUALITIES.values()]
     assert sides == sorted(sides)
     assert ACCURATE.images.max_side is None  # only accurate searches every pair at its own size ...
@@ -53,7 +59,8 @@ def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
     balanced = QUALITIES["balanced"]  # the network at 256 px first, at up to 512 where the search escalates
     assert balanced.finer_side(1024) == 512 and balanced.finer_side(200) is None and balanced.finer_side(400) == 400
     assert balanced.finer_side() == 512  # no user cap: the quality's own
-    assert QUALITIES["accurate"].finer_side(1024) is None
+    assert QUALITIES["accurate"].finer_side() == 1024 and QUALITIES["accurate"].finer_side(200) is None
+    assert QUALITIES["fast"].finer_side() is None
     with pytest.raises(ProjregError, match="--quality 'quick': expected one of fast, balanced, accurate"):
         quality("quick")
 

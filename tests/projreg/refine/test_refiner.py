@@ -16,7 +16,7 @@ from projreg.geometry.homography import area_ratio, fit_homography, homography_f
 from projreg.geometry.images import texture_weight, to_gray
 from projreg.prediction import CONFIDENT
 from projreg.refine.candidates import Candidate, grown_start
-from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, RefineConfig
+from projreg.refine.config import ACCURATE, BALANCED, DEFAULT_QUALITY, FAST, QUALITIES, SEARCH, RefineConfig
 from projreg.refine.context import PairContext, Projected
 from projreg.refine.evidence import periodicity, repeating
 from projreg.refine.refiner import GeometricRefiner
@@ -25,13 +25,13 @@ from projsynth.content.procedural import render_procedural
 
 from .rendered import bent_pair, coarse, epe, network_like
 
-NO_SIFT = ACCURATE.with_sections(search={"sift": False})
+NO_SIFT = SEARCH.with_sections(search={"sift": False})
 H_TRUE = np.array([[1.02, 0.03, 4.0], [-0.02, 0.98, -3.0], [1e-4, -5e-5, 1.0]])
 
 
 def test_refine_turns_a_coarse_flow_into_a_subpixel_one(samples):
     rng = np.random.default_rng(3)
-    refiner = GeometricRefiner(ACCURATE)  # every start on every view
+    refiner = GeometricRefiner(SEARCH)  # every start on every view
     for s in samples:
         start = coarse(s, rng)
         flow, info = refiner.refine(s["projected"], s["captured"], start)
@@ -183,7 +183,7 @@ def test_a_pair_reported_not_registered_claims_no_pixel(picture):
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
     kept, _ = GeometricRefiner().predict_info(img0, img1, net)
     assert kept.registered and 0.1 < kept.claimed.mean() < 0.5
-    pred, info = GeometricRefiner(ACCURATE.with_sections(confidence={"registered_above": 0.6})).predict_info(
+    pred, info = GeometricRefiner(SEARCH.with_sections(confidence={"registered_above": 0.6})).predict_info(
         img0, img1, net
     )
     assert info.evidence > 0.6 and not pred.registered and pred.reason.startswith("no region verified")
@@ -200,7 +200,7 @@ def test_a_short_period_bend_is_followed_by_the_detail_level(picture):
     img0, img1, gt, valid = bent_pair(picture, amp=4.0, period=140.0, seed=3)
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(11))
     errs = {}
-    for name, cfg in (("detail", ACCURATE), ("coarse", ACCURATE.with_sections(surface={"detail": False}))):
+    for name, cfg in (("detail", SEARCH), ("coarse", SEARCH.with_sections(surface={"detail": False}))):
         pred = GeometricRefiner(cfg).predict(img0, img1, net)
         errs[name] = np.linalg.norm(pred.flow - gt, axis=-1)[valid].mean()
     assert errs["detail"] < 0.75 * errs["coarse"] and errs["detail"] < 0.45, errs
@@ -225,7 +225,7 @@ def test_a_striped_wall_is_divided_out_of_the_residual_and_the_checks():
     img0, img1, gt, valid = bent_pair(picture, seed=8, wall=wall)
     net = network_like(gt, np.ones(valid.shape, bool), np.random.default_rng(10))
     got = {}
-    for name, cfg in (("albedo", ACCURATE), ("off", ACCURATE.with_sections(images={"albedo": False}))):
+    for name, cfg in (("albedo", SEARCH), ("off", SEARCH.with_sections(images={"albedo": False}))):
         pred, info = GeometricRefiner(cfg).predict_info(img0, img1, net)
         err, claimed = np.linalg.norm(pred.flow - gt, axis=-1), pred.claimed & valid
         got[name] = (err[valid].mean(), claimed.sum() / valid.sum(), err[claimed].mean(), info.images)
@@ -278,7 +278,7 @@ def test_a_grating_matched_one_period_off_is_not_claimed(lines):
     for test, most in ((True, 0.05), (False, None)):
         # without the test, and without the growth (whose rivals one period apart refuse part of it too)
         search = {"identity": False, "sift": False, "grow": test}
-        cfg = ACCURATE.with_sections(confidence={"periodic": test}, search=search)
+        cfg = SEARCH.with_sections(confidence={"periodic": test}, search=search)
         pred = GeometricRefiner(cfg).predict(projected, captured, wrong)
         err = np.linalg.norm(pred.flow - shift, axis=-1)
         if most is None and lines:  # the span alone refuses parallel lines
@@ -303,7 +303,7 @@ def test_a_coarse_tiled_motif_matched_one_period_off_is_not_claimed():
     shift = np.float32([4.0, -3.0])
     captured = cv2.remap(projected, x - shift[0], y - shift[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
     wrong = np.broadcast_to(shift + [48.0, 0.0], (h, w, 2)).astype(np.float32)
-    cfg = ACCURATE.with_sections(search={"identity": False, "sift": False})
+    cfg = SEARCH.with_sections(search={"identity": False, "sift": False})
     pred = GeometricRefiner(cfg).predict(projected, captured, wrong)
     assert pred.claimed.mean() < 0.05 and pred.reason.startswith("repeating pattern: 100%"), pred.reason
     photo = render_procedural("natural", "urban", (h, w), np.random.default_rng(5))
@@ -316,7 +316,7 @@ def test_sift_homography_competes_unrefined_on_a_planar_pair():
     img = render_procedural("natural", "urban", (240, 320), np.random.default_rng(0))
     captured = cv2.warpPerspective(img, H_TRUE, (320, 240), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     truth = homography_flow(H_TRUE, 240, 320)
-    refiner = GeometricRefiner(ACCURATE)
+    refiner = GeometricRefiner(SEARCH)
     pred, info = refiner.predict_info(img, captured, truth + 1.5)
     sift = SiftRansac().predict(img, captured)
     assert np.linalg.norm(sift - truth, axis=-1).mean() < 0.05
@@ -339,8 +339,8 @@ def test_a_planar_pair_is_answered_by_a_homography_alone(picture):
         captured = cv2.warpPerspective(picture.astype(np.float32), H, (w, h), borderMode=cv2.BORDER_REFLECT)
         captured = np.clip(255 * (captured / 255) ** (1 / 2.2) + rng.normal(0, 2.0, captured.shape), 0, 255)
         network = truth + rng.normal(0, 1.5, truth.shape).astype(np.float32)
-        for margin in (0.0, ACCURATE.selection.plane_margin):
-            pred, info = GeometricRefiner(ACCURATE.with_sections(selection={"plane_margin": margin})).predict_info(
+        for margin in (0.0, SEARCH.selection.plane_margin):
+            pred, info = GeometricRefiner(SEARCH.with_sections(selection={"plane_margin": margin})).predict_info(
                 picture, captured.astype(np.uint8), network
             )
             errors[seed, margin] = np.linalg.norm(pred.flow - truth, axis=-1).mean()
@@ -355,7 +355,7 @@ def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(sampl
     assert ACCURATE.images.max_side is None
     s = samples[1]
     img0, img1, flow = s["projected"], s["captured"], s["flow"] + 2.0  # 128 x 160, 2 px off the truth
-    config = FAST.with_sections(images={"max_side": 80})
+    config = FAST.with_sections(images={"max_side": 80, "verify_full_below": 0.0})
     pred, info = GeometricRefiner(config).predict_info(img0, img1, flow)
     small0, small1 = shrink(img0, 80), shrink(img1, 80)  # 64 x 80
     ref, ref_info = GeometricRefiner(config.with_sections(images={"max_side": None})).predict_info(
@@ -367,6 +367,16 @@ def test_the_fast_configuration_refines_the_pair_shrunk_and_brings_it_back(sampl
     np.testing.assert_array_equal(pred.claimed, info.confidence >= CONFIDENT)
     epe = np.linalg.norm(pred.flow - s["flow"], axis=-1)[s["valid"]].mean()
     assert epe < 1.0, epe  # sub-pixel at half size still
+    # a claim under ``verify_full_below`` of the frame is verified at the pair's own size, as ``verify_full`` does
+    claimed = pred.claimed.mean()
+    full = GeometricRefiner(config.with_sections(images={"verify_full": True})).predict_info(img0, img1, flow)
+    assert 0 < claimed < 1, claimed
+    for below, same in (((claimed + 1) / 2, full), (claimed / 2, (pred, info))):
+        again = GeometricRefiner(config.with_sections(images={"verify_full_below": below})).predict_info(
+            img0, img1, flow
+        )
+        np.testing.assert_array_equal(again[1].confidence, same[1].confidence)
+    assert not np.array_equal(full[1].confidence, info.confidence)  # the two verifications differ on this pair
 
 
 @pytest.mark.parametrize("quality", [ACCURATE, BALANCED, FAST], ids=["accurate", "balanced", "fast"])
@@ -407,7 +417,7 @@ def test_a_flat_gap_is_claimed_where_the_answer_agrees_with_its_verified_plane(p
     gap &= valid
     claims = {}
     for bridge in (False, True):
-        pred = GeometricRefiner(ACCURATE.with_sections(confidence={"bridge": bridge})).predict(
+        pred = GeometricRefiner(SEARCH.with_sections(confidence={"bridge": bridge})).predict(
             projected, captured, network
         )
         claims[bridge] = pred.claimed[gap].mean()
@@ -449,7 +459,7 @@ def test_a_rival_is_ambiguity_only_where_it_also_explains_the_images(picture):
 
 def test_grown_needs_a_partial_claim_and_a_plane_under_it(picture):
     h, w = picture.shape[:2]
-    ctx = PairContext.build(picture, picture, ACCURATE)
+    ctx = PairContext.build(picture, picture, SEARCH)
     H = np.array([[1.01, 0.02, 3.0], [-0.01, 0.99, -2.0], [0.0, 0.0, 1.0]])
     flow = homography_flow(H, h, w)
     left = np.zeros((h, w), bool)
@@ -478,7 +488,7 @@ def test_the_search_runs_only_where_the_direct_stage_leaves_texture_unverified(p
     pred, info = GeometricRefiner(BALANCED).predict_info(img0, img1, net, finer=finer)
     assert "more starts" not in info.stages and not asked
     assert all(k.startswith("network/") and "aligned" in k for k in info.scores), sorted(info.scores)
-    full = GeometricRefiner(ACCURATE).predict(img0, img1, net)
+    full = GeometricRefiner(SEARCH).predict(img0, img1, net)
     errors = [np.linalg.norm(p.flow - gt, axis=-1)[valid].mean() for p in (pred, full)]
     assert errors[0] < 0.5 and errors[0] < errors[1] + 0.05, errors
     lost = np.full_like(net, 40.0)
