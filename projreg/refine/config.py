@@ -23,7 +23,7 @@ class ImagesConfig:
 
     max_side: int | None = None  # refine the pair shrunk to this longer side (None: its own size) ...
     verify_full: bool = False  # ... and verify the answer at the pair's own size (else: its confidence resized) ...
-    verify_full_below: float = 0.0  # ... or verify it there only when it claims less than this share of the frame
+    verify_full_below: float = 0.0  # ... or only where it claims less than this share of the visible texture
     contrast_sigma: float = 8.0  # Gaussian window (px) of the local contrast normalisation
     shrunk_sigma: float = 3.5  # local statistics (contrast, NCC) of a window sigma >= twice this (px) are
     # taken on the images shrunk sigma // this times (geometry.images.gaussian)
@@ -322,8 +322,8 @@ class Quality:
 # ``fast``: the network's start aligned directly to the normalised images at 256 px (no DIS),
 # the fit's pixel parameters halved, no detail level, albedo view or bridge, and the residual's pass marks
 # halved (1 px passes, 2 px fails: its smaller search leaves pixels 2-3 px off that pass the default's
-# marks; docs/history/2026-12-05-honest-claims.md); an answer claiming under half the frame is verified
-# again at the pair's own size (a small claim's evidence, checked at 256 px, let pixels 1.5-1.7 px off pass).
+# marks; docs/history/2026-12-05-honest-claims.md); an answer claiming under half the visible texture is
+# verified again at the pair's own size (a small claim's evidence, checked at 256 px, let pixels 1.5-1.7 px off pass).
 # Their figures: docs/results.md.
 SEARCH = RefineConfig()  # every start on every view in one stage (the settings' defaults)
 BALANCED = SEARCH.with_sections(

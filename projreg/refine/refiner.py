@@ -46,8 +46,8 @@ reads as the algorithm:
    window (:func:`~projreg.refine.verify.pinned`): a curve alone slides along itself.
 
 A pair longer than ``images.max_side`` runs stages 1-8 shrunk to it; with ``images.verify_full``
-(``balanced``: 512 px), or where the winner claims less than ``images.verify_full_below`` of the frame
-(``fast``: half), the candidates are then resized to the pair's own grid and the winner verified there
+(``balanced``: 512 px), or where the winner claims less than ``images.verify_full_below`` of the visible
+texture (``fast``: half), the candidates are then resized to the pair's own grid and the winner verified there
 (stage 5 again, at full resolution) before the verdict.
 
 docs/model.md describes each stage, its parameters (:mod:`~projreg.refine.config`) and what it is for.
@@ -218,7 +218,7 @@ class GeometricRefiner:
         search.repeats = ctx.side.repeats
         self._reselect(search, ahead=(lambda best: best.polished) if direct and cfg.align.realign else None)
         rest = views if direct else [v for v in views if v not in first_views]  # DIS's views still to try
-        claimed = ctx.claimed_share(search.conf, search.best.flow)
+        claimed = search.claimed()
         if not one_stage and (more or rest) and claimed < cfg.search.escalate_below:
             search.drop_ahead()  # the first stage's candidates do not go on: its winner's re-alignment stops
             if finer is not None:  # the network's finer flow: a better start for the search, on every view
@@ -419,7 +419,8 @@ class GeometricRefiner:
         """:meth:`predict_info` on the pair shrunk to ``images.max_side``; flow and confidence resized back
         (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``, its checks'
         distances read in the pair's own pixels (:func:`~projreg.refine.verify.checks`). With
-        ``images.verify_full``, or where the answer claims less than ``images.verify_full_below`` of the frame,
+        ``images.verify_full``, or where the answer claims less than ``images.verify_full_below`` of the visible
+        texture,
         the search's answer is verified again at the pair's own size instead (:meth:`_at_full_size`): its
         confidence and claim are the full-size checks'."""
         images, (h, w) = self.config.images, projected.shape[:2]
@@ -438,7 +439,7 @@ class GeometricRefiner:
                 fitting.cancel()
         if searched is None:  # too small or textureless: not registered, as the pair shrunk says
             pred, info = self._predict_at(small0, small1, small_flow, identity, smaller, scale)
-        elif images.verify_full or (searched.conf >= CONFIDENT).mean() < images.verify_full_below:
+        elif images.verify_full or searched.claimed() < images.verify_full_below:
             return self._verdict(self._at_full_size(searched, projected, captured))
         else:
             pred, info = self._verdict(searched)

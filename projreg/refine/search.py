@@ -33,6 +33,10 @@ class Search:
     ahead: tuple[Candidate, Future, Event] | None = None
     mirror: Future | None = None  # the pair's handedness (:mod:`~projreg.refine.handedness`), on the pool
 
+    def claimed(self) -> float:
+        """The share of the visible texture the winner claims (:meth:`.PairContext.claimed_share`)."""
+        return self.ctx.claimed_share(self.conf, self.best.flow)
+
     def realign_ahead(self, workers: Workers) -> None:
         """Start the winner's re-alignment on the pool (the one of an earlier winner stopped); one already
         started for this winner goes on."""
