@@ -170,9 +170,8 @@ class GeometricRefiner:
         fitting = self._workers.submit(network_starts, self.config, flow)  # beside the context
         ctx = PairContext.build(projected, captured, self.config, self._projected(projected), scale)
         if ctx.share < self.config.images.textureless_below:
-            why = f"textureless: {100 * ctx.share:.1f}% of the projected image carries texture"
-            pred = Prediction(np.zeros_like(flow), none > 0, False, why, none)
-            return pred, RefineInfo("none", "", {}, none, ctx.share)
+            fitting.cancel()
+            return textureless(flow, ctx.share)
         search = self._search(ctx, projected, captured, fitting, identity, finer)
         return self._verdict(search)
 
@@ -420,29 +419,27 @@ class GeometricRefiner:
         (bilinear), the claimed pixels those whose resized confidence is at least ``CONFIDENT``, its checks'
         distances read in the pair's own pixels (:func:`~projreg.refine.verify.checks`). With
         ``images.verify_full``, or where the answer claims less than ``images.verify_full_below`` of the visible
-        texture,
-        the search's answer is verified again at the pair's own size instead (:meth:`_at_full_size`): its
-        confidence and claim are the full-size checks'."""
+        texture, the search's answer is verified again at the pair's own size instead (:meth:`_at_full_size`):
+        its confidence and claim are the full-size checks'."""
         images, (h, w) = self.config.images, projected.shape[:2]
         small0, small1 = shrink(projected, images.max_side), shrink(captured, images.max_side)
         smaller = None if finer is None else lambda: resize_flow(finer(), small0.shape)
         scale = max(h, w) / max(small0.shape[:2])  # a verdict read on the shrunk pair: its checks' tolerance
         small_flow = resize_flow(flow, small0.shape)
-        searched = None
-        if min(small0.shape[:2]) >= MIN_SIDE:
+        if min(small0.shape[:2]) < MIN_SIDE:  # a thin strip shrunk: its own answer, unchanged (_predict_at)
+            pred, info = self._predict_at(small0, small1, small_flow, identity, smaller, scale)
+        else:
             fitting = self._workers.submit(network_starts, self.config, small_flow)  # beside the context
             side, tolerance = self._projected(small0), 1.0 if images.verify_full else scale
             ctx = PairContext.build(small0, small1, self.config, side, tolerance)
-            if ctx.share >= images.textureless_below:
-                searched = self._search(ctx, small0, small1, fitting, identity, smaller)
-            else:
+            if ctx.share < images.textureless_below:
                 fitting.cancel()
-        if searched is None:  # too small or textureless: not registered, as the pair shrunk says
-            pred, info = self._predict_at(small0, small1, small_flow, identity, smaller, scale)
-        elif images.verify_full or searched.claimed() < images.verify_full_below:
-            return self._verdict(self._at_full_size(searched, projected, captured))
-        else:
-            pred, info = self._verdict(searched)
+                pred, info = textureless(small_flow, ctx.share)
+            else:
+                searched = self._search(ctx, small0, small1, fitting, identity, smaller)
+                if images.verify_full or searched.claimed() < images.verify_full_below:
+                    return self._verdict(self._at_full_size(searched, projected, captured))
+                pred, info = self._verdict(searched)
         conf = cv2.resize(info.confidence, (w, h), interpolation=cv2.INTER_LINEAR)  # [H, W]
         claimed = (conf >= CONFIDENT) if pred.registered else np.zeros((h, w), bool)
         pred = replace(pred, flow=resize_flow(pred.flow, projected.shape), claimed=claimed, confidence=conf)
@@ -464,6 +461,14 @@ class GeometricRefiner:
         out.mirror = search.mirror
         out.conf = self.confidence(ctx, cands, out.scores, best, repeats)
         return out
+
+
+def textureless(flow: np.ndarray, share: float) -> tuple[Prediction, RefineInfo]:
+    """The answer for a pair whose projected image carries texture on ``share`` of the frame, under
+    ``images.textureless_below``: not registered, a zero flow of ``flow``'s shape, nothing claimed."""
+    none = np.zeros(flow.shape[:2], np.float32)
+    why = f"textureless: {100 * share:.1f}% of the projected image carries texture"
+    return Prediction(np.zeros_like(flow), none > 0, False, why, none), RefineInfo("none", "", {}, none, share)
 
 
 def unconfirmed(claimed: np.ndarray, share: float, least: float, px: float) -> str:
