@@ -227,7 +227,8 @@ SETS = (
         "scikit-image's pictures (14 full frame, 3 on the left 45 % of the frame, one almost blank page) "
         "after a homography and a bend, dome, lens or fold, on a painted, plaster or brick wall, through "
         "gamma, S-curve or clipped camera responses; 384 x 512; the third run a plaid cloth whose pattern rivals "
-        "the projected picture's. The pipeline is `projreg predict` on the "
+        "the projected picture's; the last two the striped sheet on two more draws of the rig's jitter (the "
+        "refinement's rules were measured on the first). The pipeline is `projreg predict` on the "
         "two folders, as a user runs it, against SIFT + RANSAC and DIS medium on the same pairs. The "
         "script reports per-pair means, no pooled EPE.",
         (),
@@ -249,6 +250,15 @@ SETS = (
                 f"python bench/external_rig.py --out {_B}/external/plaid --albedo plaid --ambient 0.25 "
                 f"--json {RESULTS / 'external-plaid.json'}",
                 "a plaid cloth, room light a quarter of the projector's white",
+            ),
+            *(
+                Run(
+                    f"external-stripes-{seed}.json",
+                    f"python bench/external_rig.py --out {_B}/external/stripes-{seed} --seed {seed} --shape bend "
+                    f"--albedo stripes --response gamma --ambient 0 --json {RESULTS / f'external-stripes-{seed}.json'}",
+                    f"the striped sheet again, another draw of the rig's jitter (seed {seed})",
+                )
+                for seed in (2027, 2028)
             ),
         ),
     ),
