@@ -50,8 +50,9 @@ def test_the_quality_dial_orders_the_settings_from_latency_to_accuracy():
     # balanced would have stopped), every pair at its own size
     assert ACCURATE.align == BALANCED.align and ACCURATE.search.escalate_below == 1
     assert ACCURATE.search.keep_direct_at == BALANCED.search.escalate_below and BALANCED.search.keep_direct_at == 1
-    sides = [q.network_side for q in QUALITIES.values()]
-    assert sides == sorted(sides)
+    # the most the network sees, escalations included: 256, 512, 1024 px
+    sides = [q.finer_side() or q.network_side for q in QUALITIES.values()]
+    assert sides == sorted(sides) and len(set(sides)) == 3, sides
     assert ACCURATE.images.max_side is None  # only accurate searches every pair at its own size ...
     assert FAST.images.max_side < BALANCED.images.max_side and BALANCED.images.verify_full  # ... balanced verifies
     assert not FAST.search.identity and not FAST.search.sift
